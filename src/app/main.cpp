@@ -1,0 +1,141 @@
+// mer_slam: configuration, start, signals, outputs. The stages are wired in
+// pipeline/pipeline.cpp; this file only sets the run up and reports it.
+
+#include <atomic>
+#include <csignal>
+#include <filesystem>
+#include <iostream>
+
+#include "app/cli.h"
+#include "app/summary.h"
+#include "core/config_io.h"
+#include "hal/camera_factory.h"
+#include "pipeline/pipeline.h"
+#include "platform/log_ring.h"
+#include "platform/thread_table.h"
+
+namespace {
+
+std::atomic<bool> g_stop{false};
+static_assert(std::atomic<bool>::is_always_lock_free, "signal handler needs a lock-free flag");
+
+extern "C" void on_signal(int /*sig*/) {
+  g_stop.store(true, std::memory_order_relaxed);
+}
+
+void install_signal_handlers() {
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
+mer::platform::LogLevel parse_level(const std::string& s) {
+  using mer::platform::LogLevel;
+  if (s == "debug") return LogLevel::kDebug;
+  if (s == "warn") return LogLevel::kWarn;
+  if (s == "error") return LogLevel::kError;
+  return LogLevel::kInfo;
+}
+
+int fail(const mer::Status& s) {
+  std::cerr << "mer_slam: error: " << s.message() << "\n";
+  return mer::app::exit_code_for(s);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace mer;
+  install_signal_handlers();
+  (void)platform::default_log();  // construct before any hot thread logs
+
+  auto parsed = app::parse_cli(argc, argv);
+  if (!parsed.is_ok()) {
+    std::cerr << app::usage();
+    return fail(parsed.status());
+  }
+  const app::CliArgs& args = parsed.value();
+  if (args.help) {
+    std::cout << app::usage();
+    return 0;
+  }
+  if (args.version) {
+    std::cout << "mer_slam " << MER_VERSION << "\n";
+    return 0;
+  }
+  app::SlamConfig config;
+  if (Status s = app::build_config(args, config); !s.is_ok()) return fail(s);
+  if (args.print_config) {
+    std::cout << "# mer_slam effective configuration (load with --config)\n";
+    options::print(config, std::cout);
+    return 0;
+  }
+
+  platform::LogDrain drain(platform::default_log(), stderr,
+                           parse_level(config.telemetry.log_level));
+  const platform::BoardThreads board =
+      platform::find_board(config.board.profile).value_or(platform::kBoardGenericX86);
+  (void)drain.start(board.log);
+
+  app::RunInfo info;
+  info.input = args.input;
+  info.sensor_mode = config.pipeline.mode;
+  int code = 0;
+  {
+    auto uri = hal::parse_input_uri(args.input);
+    if (!uri.is_ok()) {
+      drain.stop();
+      return fail(uri.status());
+    }
+    auto cam = hal::make_camera(uri.value(), config.camera, !config.pipeline.lockstep);
+    if (!cam.is_ok()) {
+      drain.stop();
+      return fail(cam.status());
+    }
+    hal::CameraSource& camera = *cam.value();
+    if (Status s = camera.open(static_cast<std::size_t>(config.camera.pool_size)); !s.is_ok()) {
+      drain.stop();
+      return fail(s);
+    }
+    info.source = camera.describe();
+    info.intrinsics = hal::effective_intrinsics(camera.intrinsics(), config.camera.calibration);
+
+    if (!args.output_dir.empty()) {
+      std::error_code ec;
+      std::filesystem::create_directories(args.output_dir, ec);
+      if (ec || !std::filesystem::is_directory(args.output_dir)) {
+        drain.stop();
+        return fail(invalid_argument("--output '" + args.output_dir + "': cannot create directory" +
+                                     (ec ? ": " + ec.message() : std::string())));
+      }
+    }
+    pipeline::PipelineConfig pc{config.pipeline, config.board, config.telemetry, config.output,
+                                config.tracking};
+    pipeline::Pipeline pipe(pc, camera, g_stop);
+    Status s = pipe.init(args.output_dir);
+    if (!s.is_ok()) {
+      drain.stop();
+      return fail(s);
+    }
+    s = pipe.run();
+    info.stopped_by_signal = g_stop.load();
+    if (!s.is_ok()) {
+      info.error = s.message();
+      code = app::exit_code_for(s);
+    }
+    drain.stop();  // print pending warnings before the summary
+    if (!args.output_dir.empty()) {
+      const std::string path = (std::filesystem::path(args.output_dir) / "summary.json").string();
+      if (Status w = app::write_file_atomic(path, app::summary_json(pipe.stats(), info));
+          !w.is_ok()) {
+        std::cerr << "mer_slam: error: " << w.message() << "\n";
+        if (code == 0) code = 4;
+      }
+    }
+    if (!args.quiet) app::print_summary(std::cout, pipe.stats(), info);
+    if (!s.is_ok()) std::cerr << "mer_slam: error: " << s.message() << "\n";
+  }
+  return code;
+}

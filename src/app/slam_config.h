@@ -1,0 +1,34 @@
+#pragma once
+/// @file slam_config.h
+/// The whole configuration of mer_slam: one section per module. Loaded from the built-in
+/// defaults, then `--config FILE`, then `--board FILE`, then command-line flags; validated
+/// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
+
+#include "core/options.h"
+#include "frontend/placeholder_tracker.h"
+#include "hal/camera_factory.h"
+#include "pipeline/pipeline_options.h"
+
+namespace mer::app {
+
+/// Top-level configuration.
+struct SlamConfig {
+  pipeline::PipelineOptions pipeline;
+  hal::CameraOptions camera;
+  frontend::TrackingOptions tracking;
+  pipeline::BoardOptions board;
+  pipeline::TelemetryOptions telemetry;
+  pipeline::OutputOptions output;
+
+  template <class V>
+  void visit(V& v) {
+    v.section("pipeline", pipeline, "how the pipeline runs");
+    v.section("camera", camera, "frame sources");
+    v.section("tracking", tracking, "tracking stage");
+    v.section("board", board, "thread placement and latency budgets");
+    v.section("telemetry", telemetry, "latency and allocation accounting");
+    v.section("output", output, "output files");
+  }
+};
+
+}  // namespace mer::app

@@ -1,0 +1,152 @@
+#include "app/summary.h"
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <iomanip>
+#include <sstream>
+
+namespace mer::app {
+namespace {
+
+std::string json_string(const std::string& s) {
+  std::string out = "\"";
+  for (const char c : s) {
+    switch (c) {
+      case '"':
+        out += "\\\"";
+        break;
+      case '\\':
+        out += "\\\\";
+        break;
+      case '\n':
+        out += "\\n";
+        break;
+      case '\t':
+        out += "\\t";
+        break;
+      default:
+        if (static_cast<unsigned char>(c) < 0x20) {
+          char buf[8];
+          std::snprintf(buf, sizeof buf, "\\u%04x", c);
+          out += buf;
+        } else {
+          out += c;
+        }
+    }
+  }
+  return out + "\"";
+}
+
+std::string num(double v) {
+  std::ostringstream os;
+  os << std::setprecision(6) << v;
+  return os.str();
+}
+
+}  // namespace
+
+std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info) {
+  std::ostringstream j;
+  j << "{\n";
+  j << "  \"frames_in\": " << st.frames_in << ",\n";
+  j << "  \"frames_processed\": " << st.frames_processed << ",\n";
+  j << "  \"frames_dropped\": " << st.frames_dropped << ",\n";
+  j << "  \"frames_lost\": " << st.frames_lost << ",\n";
+  j << "  \"keyframes\": " << st.keyframes << ",\n";
+  j << "  \"map_points\": " << st.map_points << ",\n";
+  j << "  \"wall_time_s\": " << num(st.wall_time_s) << ",\n";
+  j << "  \"latency_ms\": {";
+  for (std::size_t i = 0; i < st.latency.size(); ++i) {
+    const auto& l = st.latency[i];
+    j << (i ? "," : "") << "\n    " << json_string(l.name) << ": {\"p50\": " << num(l.p50_ms)
+      << ", \"p90\": " << num(l.p90_ms) << ", \"p99\": " << num(l.p99_ms)
+      << ", \"max\": " << num(l.max_ms) << ", \"mean\": " << num(l.mean_ms)
+      << ", \"count\": " << l.count << ", \"budget\": " << num(l.budget_ms) << "}";
+  }
+  j << "\n  },\n";
+  j << "  \"budget_overruns\": {";
+  for (std::size_t i = 0; i < st.latency.size(); ++i) {
+    j << (i ? ", " : "") << json_string(st.latency[i].name) << ": " << st.latency[i].overruns;
+  }
+  j << "},\n";
+  j << "  \"allocs_per_frame\": {";
+  for (std::size_t i = 0; i < st.allocs.size(); ++i) {
+    j << (i ? ", " : "") << json_string(st.allocs[i].thread) << ": "
+      << num(st.allocs[i].per_frame());
+  }
+  j << "},\n";
+  j << "  \"steady_state_frames\": {";
+  for (std::size_t i = 0; i < st.allocs.size(); ++i) {
+    j << (i ? ", " : "") << json_string(st.allocs[i].thread) << ": " << st.allocs[i].frames;
+  }
+  j << "},\n";
+  j << "  \"input\": " << json_string(info.input) << ",\n";
+  j << "  \"source\": " << json_string(info.source) << ",\n";
+  j << "  \"sensor_mode\": " << json_string(info.sensor_mode) << ",\n";
+  j << "  \"run_mode\": " << json_string(st.mode) << ",\n";
+  const auto& k = info.intrinsics;
+  j << "  \"intrinsics\": {\"width\": " << k.width << ", \"height\": " << k.height
+    << ", \"fx\": " << num(k.fx) << ", \"fy\": " << num(k.fy) << ", \"cx\": " << num(k.cx)
+    << ", \"cy\": " << num(k.cy) << "},\n";
+  j << "  \"pose_source\": " << json_string(st.pose_source) << ",\n";
+  j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
+  j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
+  j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
+  j << "  \"output_overflows\": " << st.output_overflows << ",\n";
+  j << "  \"acquire_timeouts\": " << st.acquire_timeouts << ",\n";
+  j << "  \"threads\": [";
+  for (std::size_t i = 0; i < st.threads.size(); ++i) {
+    const auto& t = st.threads[i];
+    j << (i ? "," : "") << "\n    {\"name\": " << json_string(t.thread) << ", \"core\": " << t.core
+      << ", \"priority\": " << t.priority << ", \"applied\": " << (t.applied ? "true" : "false")
+      << ", \"note\": " << json_string(t.note) << "}";
+  }
+  j << (st.threads.empty() ? "" : "\n  ") << "],\n";
+  j << "  \"error\": " << json_string(info.error) << "\n";
+  j << "}\n";
+  return j.str();
+}
+
+Status write_file_atomic(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp";
+  std::FILE* f = std::fopen(tmp.c_str(), "w");
+  if (f == nullptr) return runtime_error("cannot write '" + tmp + "': " + std::strerror(errno));
+  const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
+  if (std::fclose(f) != 0 || !ok) return runtime_error("error writing '" + tmp + "'");
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return runtime_error("cannot rename '" + tmp + "' to '" + path + "': " + ec.message());
+  return Status::ok();
+}
+
+void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const RunInfo& info) {
+  os << "mer_slam: " << info.source << " [" << st.mode << ", " << info.sensor_mode << "]\n";
+  os << "  frames: in " << st.frames_in << ", processed " << st.frames_processed << ", dropped "
+     << st.frames_dropped << ", lost " << st.frames_lost << ", keyframes " << st.keyframes << "  ("
+     << st.end_reason << ", " << std::fixed << std::setprecision(2) << st.wall_time_s << " s)\n";
+  os << "  poses: " << st.pose_source << "\n";
+  os << "  latency ms      p50      p90      p99      max   budget  overruns\n";
+  for (const auto& l : st.latency) {
+    os << "  " << std::left << std::setw(12) << l.name << std::right << std::fixed
+       << std::setprecision(3) << std::setw(9) << l.p50_ms << std::setw(9) << l.p90_ms
+       << std::setw(9) << l.p99_ms << std::setw(9) << l.max_ms << std::setw(9) << l.budget_ms
+       << std::setw(10) << l.overruns << "\n";
+  }
+  os << "  heap allocations per frame (steady state):";
+  for (const auto& a : st.allocs) {
+    os << " " << a.thread << " " << std::setprecision(2) << a.per_frame();
+  }
+  os << "\n";
+  if (st.pool_exhausted || st.output_overflows) {
+    os << "  pool exhausted " << st.pool_exhausted << ", output overflows " << st.output_overflows
+       << "\n";
+  }
+  for (const auto& t : st.threads) {
+    if (!t.applied) os << "  note: thread '" << t.thread << "': " << t.note << "\n";
+  }
+  if (!info.error.empty()) os << "  error: " << info.error << "\n";
+}
+
+}  // namespace mer::app

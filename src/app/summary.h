@@ -1,0 +1,39 @@
+#pragma once
+/// @file summary.h
+/// summary.json (stable key names; later features add keys, never rename them) and the
+/// human-readable summary printed at the end of a run.
+///
+/// Keys: frames_in, frames_processed, frames_dropped, frames_lost, keyframes, map_points,
+/// wall_time_s, latency_ms {stage: {p50, p90, p99, max, mean, count, budget}},
+/// budget_overruns {stage: n}, allocs_per_frame {thread: n}, plus run details
+/// (input, mode, pose_source, end_reason, pool_exhausted, output_overflows, threads, ...).
+
+#include <ostream>
+#include <string>
+
+#include "core/status.h"
+#include "hal/camera.h"
+#include "pipeline/pipeline.h"
+
+namespace mer::app {
+
+/// Run details that are not pipeline counters.
+struct RunInfo {
+  std::string input;                 ///< --input URI
+  std::string source;                ///< the source's description
+  hal::CameraIntrinsics intrinsics;  ///< calibration in use
+  std::string sensor_mode;           ///< mono | rgbd
+  bool stopped_by_signal = false;
+  std::string error;  ///< non-empty when the run failed
+};
+
+/// Renders summary.json.
+std::string summary_json(const pipeline::PipelineStats& stats, const RunInfo& info);
+
+/// Writes `text` to `path` atomically (temporary file + rename).
+Status write_file_atomic(const std::string& path, const std::string& text);
+
+/// Prints the human-readable summary (latency table, allocation counts, counters).
+void print_summary(std::ostream& os, const pipeline::PipelineStats& stats, const RunInfo& info);
+
+}  // namespace mer::app

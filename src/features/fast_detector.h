@@ -1,0 +1,75 @@
+#pragma once
+/// @file fast_detector.h
+/// FAST-9 corner detector (Rosten & Drummond, 2006) with 3x3 non-maximum suppression and
+/// grid bucketing, written to run without heap allocation after construction: every
+/// buffer is sized for the image at construction. (cv::FAST allocates per call, which the
+/// tracking thread must not do.)
+///
+/// A pixel p is a corner when 9 contiguous pixels of the 16-pixel Bresenham circle of
+/// radius 3 are all brighter than I(p) + t or all darker than I(p) - t. Score = sum over
+/// the circle of max(0, |I(x) - I(p)| - t), used for suppression and bucketing.
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+#include "core/options.h"
+
+namespace mer::features {
+
+/// Options of the corner detector (config section `tracking.fast`).
+struct FastOptions {
+  int threshold = 20;          ///< intensity difference to the centre, grey levels
+  int max_corners = 1000;      ///< corners kept after bucketing
+  int grid_cols = 8;           ///< bucketing grid columns (spread corners over the image)
+  int grid_rows = 6;           ///< bucketing grid rows
+  int max_candidates = 20000;  ///< corners kept before bucketing (buffer size)
+
+  template <class V>
+  void visit(V& v) {
+    v.field("threshold", threshold, "FAST intensity threshold, grey levels",
+            options::Range<int>{1, 254});
+    v.field("max_corners", max_corners, "corners kept after grid bucketing",
+            options::Range<int>{1, 100000});
+    v.field("grid_cols", grid_cols, "bucketing grid columns", options::Range<int>{1, 64});
+    v.field("grid_rows", grid_rows, "bucketing grid rows", options::Range<int>{1, 64});
+    v.field("max_candidates", max_candidates, "corner candidates kept before bucketing",
+            options::Range<int>{1, 1000000});
+  }
+};
+
+/// A detected corner.
+struct Corner {
+  std::int16_t x = 0;      ///< column, px
+  std::int16_t y = 0;      ///< row, px
+  std::int32_t score = 0;  ///< FAST score (higher is stronger)
+  std::int32_t cell = 0;   ///< bucketing cell index (row-major)
+};
+
+/// Allocation-free FAST-9 detector for images of one fixed size.
+class FastDetector {
+ public:
+  /// Allocates buffers for `width` x `height` images.
+  FastDetector(const FastOptions& opts, int width, int height);
+
+  /// Detects corners in `gray` (CV_8UC1 of the constructed size). The returned span
+  /// points into the detector's buffer and is valid until the next call. Sorted by cell,
+  /// then by decreasing score, then by position (deterministic).
+  std::span<const Corner> detect(const cv::Mat& gray);
+
+  /// Candidates dropped in the last call because max_candidates was reached.
+  std::uint64_t candidates_dropped() const { return dropped_; }
+
+ private:
+  FastOptions opts_;
+  int width_;
+  int height_;
+  std::vector<std::int32_t> score_;  // per pixel, 0 = not a corner
+  std::vector<Corner> candidates_;   // capacity max_candidates
+  std::vector<Corner> kept_;         // capacity max_corners
+  std::uint64_t dropped_ = 0;
+};
+
+}  // namespace mer::features

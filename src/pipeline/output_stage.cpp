@@ -1,0 +1,108 @@
+#include "pipeline/output_stage.h"
+
+#include <array>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+
+#include "platform/clock.h"
+
+namespace mer::pipeline {
+namespace {
+constexpr std::size_t kFileBuffer = 1 << 16;  // stdio buffer per output file
+constexpr std::size_t kLineBuffer = 512;      // longest line we format
+constexpr double kNsToMs = 1e-6;
+constexpr double kNsToS = 1e-9;
+}  // namespace
+
+int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c) {
+  const Eigen::Quaterniond q(T_w_c.linear());
+  const Eigen::Vector3d& t = T_w_c.translation();
+  // Fixed formatting: deterministic, round-trips to ~1e-9.
+  return std::snprintf(buf, size, "%.9f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
+                       static_cast<double>(t_ns) * kNsToS, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(),
+                       q.w());
+}
+
+OutputStage::~OutputStage() {
+  (void)close();
+}
+
+Status OutputStage::open_file(File& file, const std::string& path, const char* header) {
+  file.path = path;
+  file.f = std::fopen(path.c_str(), "w");
+  if (file.f == nullptr) {
+    return input_error("cannot write '" + path + "': " + std::strerror(errno));
+  }
+  std::setvbuf(file.f, nullptr, _IOFBF, kFileBuffer);
+  if (header != nullptr) std::fputs(header, file.f);
+  return Status::ok();
+}
+
+Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
+  opts_ = opts;
+  if (dir.empty()) return Status::ok();
+  const std::filesystem::path d(dir);
+  Status s = open_file(trajectory_, (d / "trajectory.txt").string(), nullptr);
+  if (s.is_ok()) s = open_file(keyframes_, (d / "keyframes.txt").string(), nullptr);
+  if (s.is_ok()) {
+    s = open_file(frames_csv_, (d / "frames.csv").string(),
+                  "seq,t_s,state,keyframe,features,feature_hash\n");
+  }
+  if (s.is_ok()) {
+    s = open_file(latency_csv_, (d / "latency.csv").string(),
+                  "seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms\n");
+  }
+  return s;
+}
+
+std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int64_t end_to_end_ns) {
+  const std::int64_t t0 = platform::monotonic_now_ns();
+  ++frames_;
+  if (trajectory_.f == nullptr) return platform::monotonic_now_ns() - t0;
+  std::array<char, kLineBuffer> line{};
+  if (r.state == frontend::TrackState::kTracked) {
+    const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
+    std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
+    if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
+  }
+  const double t_s = static_cast<double>(r.t_ns) * kNsToS;
+  std::fprintf(frames_csv_.f, "%llu,%.9f,%s,%d,%d,%016llx\n",
+               static_cast<unsigned long long>(r.seq), t_s, frontend::to_string(r.state),
+               r.is_keyframe ? 1 : 0, r.num_features,
+               static_cast<unsigned long long>(r.feature_hash));
+  if (frames_ % static_cast<std::uint64_t>(opts_.flush_every) == 0) flush_all();
+  const std::int64_t out_ns = platform::monotonic_now_ns() - t0;
+  using S = frontend::StageId;
+  auto ms = [&r](S s) {
+    return static_cast<double>(r.stage_ns[static_cast<std::size_t>(s)]) * kNsToMs;
+  };
+  std::fprintf(latency_csv_.f, "%llu,%.9f,%.4f,%.4f,%.4f,%.4f,%.4f\n",
+               static_cast<unsigned long long>(r.seq), t_s, ms(S::kCapture), ms(S::kQueue),
+               ms(S::kTracking), static_cast<double>(end_to_end_ns) * kNsToMs,
+               static_cast<double>(out_ns) * kNsToMs);
+  return out_ns;
+}
+
+void OutputStage::flush_all() {
+  for (File* f : {&trajectory_, &keyframes_, &frames_csv_, &latency_csv_}) {
+    if (f->f != nullptr && (std::fflush(f->f) != 0 || std::ferror(f->f) != 0)) write_error_ = true;
+  }
+}
+
+Status OutputStage::close() {
+  Status result;
+  flush_all();
+  for (File* f : {&trajectory_, &keyframes_, &frames_csv_, &latency_csv_}) {
+    if (f->f == nullptr) continue;
+    const bool bad = std::ferror(f->f) != 0;
+    if (std::fclose(f->f) != 0 || bad) {
+      if (result.is_ok()) result = runtime_error("error writing '" + f->path + "'");
+    }
+    f->f = nullptr;
+  }
+  if (write_error_ && result.is_ok()) result = runtime_error("error writing output files");
+  return result;
+}
+
+}  // namespace mer::pipeline

@@ -1,0 +1,64 @@
+#pragma once
+/// @file output_stage.h
+/// The output stage: `spin_once(TrackingResult)` appends one frame's records to the output
+/// files. Files are opened before start (so errors surface early) and flushed every
+/// `flush_every` frames and at close, so a stop loses nothing already processed.
+///
+/// Files (in the --output directory):
+/// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every tracked frame
+/// - keyframes.txt   same format, keyframes only
+/// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash` for every processed frame
+/// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
+
+#include <cstdint>
+#include <cstdio>
+#include <string>
+
+#include "core/status.h"
+#include "frontend/tracking_result.h"
+#include "pipeline/pipeline_options.h"
+
+namespace mer::pipeline {
+
+/// Writes per-frame results. Single thread; the files are plain stdio with large buffers.
+class OutputStage {
+ public:
+  OutputStage() = default;
+  OutputStage(const OutputStage&) = delete;
+  OutputStage& operator=(const OutputStage&) = delete;
+  ~OutputStage();
+
+  /// Opens (truncates) the files in `dir`; an empty `dir` makes the stage a no-op sink.
+  Status open(const std::string& dir, const OutputOptions& opts);
+
+  /// Appends one frame. `end_to_end_ns` is frame-ready to tracking-result latency.
+  /// Returns the time spent writing, ns.
+  std::int64_t spin_once(const frontend::TrackingResult& r, std::int64_t end_to_end_ns);
+
+  /// Flushes and closes every file; reports the first write error (disk full, ...).
+  Status close();
+
+  /// Frames written so far.
+  std::uint64_t frames_written() const { return frames_; }
+
+ private:
+  struct File {
+    std::FILE* f = nullptr;
+    std::string path;
+  };
+  Status open_file(File& file, const std::string& path, const char* header);
+  void flush_all();
+
+  OutputOptions opts_;
+  File trajectory_;
+  File keyframes_;
+  File frames_csv_;
+  File latency_csv_;
+  std::uint64_t frames_ = 0;
+  bool write_error_ = false;
+};
+
+/// Formats a pose line in TUM format into `buf` (no allocation); returns its length.
+int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c);
+
+}  // namespace mer::pipeline

@@ -1,0 +1,400 @@
+#include "pipeline/pipeline.h"
+
+#include <algorithm>
+#include <thread>
+
+#include "platform/alloc_counter.h"
+#include "platform/clock.h"
+#include "platform/log_ring.h"
+#include "platform/memory.h"
+#include "platform/notifier.h"
+#include "platform/overwrite_ring.h"
+#include "platform/rt_thread.h"
+#include "platform/spsc_ring.h"
+
+namespace mer::pipeline {
+namespace {
+
+constexpr double kMsToNs = 1e6;
+constexpr double kNsToS = 1e-9;
+constexpr std::int64_t kIdleWaitNs = 20'000'000;  // consumer re-checks stop flags this often
+constexpr std::int64_t kPoolRetryNs = 1'000'000;  // back-off when every buffer is in use
+
+std::int64_t ms_to_ns(double ms) {
+  return static_cast<std::int64_t>(ms * kMsToNs);
+}
+
+StageLatency summarize(const platform::LatencyRecorder& r) {
+  StageLatency s;
+  s.name = std::string(r.name());
+  s.count = r.count();
+  if (s.count > 0) {
+    s.p50_ms = r.percentile_ms(0.50);
+    s.p90_ms = r.percentile_ms(0.90);
+    s.p99_ms = r.percentile_ms(0.99);
+    s.max_ms = r.max_ms();
+    s.mean_ms = r.mean_ms();
+  }
+  s.budget_ms = static_cast<double>(r.budget_ns()) / kMsToNs;
+  s.overruns = r.overruns();
+  return s;
+}
+
+/// Counts heap allocations of the calling thread across one unit of work.
+class AllocScope {
+ public:
+  AllocScope() : start_(platform::alloc::thread_allocations()) {}
+  std::uint64_t delta() const { return platform::alloc::thread_allocations() - start_; }
+
+ private:
+  std::uint64_t start_;
+};
+
+/// Generic consumer loop of a threaded stage: pops inputs with `pop(In&)` and hands them to
+/// `work(In&)`; sleeps on `wake` when idle; ends when `upstream_done` is set and the input
+/// is drained.
+template <typename In, typename PopFn, typename WorkFn>
+void consume_loop(platform::Notifier& wake, const std::atomic<bool>& upstream_done, PopFn&& pop,
+                  WorkFn&& work) {
+  In item{};
+  while (true) {
+    const std::uint32_t epoch = wake.epoch();
+    if (pop(item)) {
+      work(item);
+      continue;
+    }
+    if (upstream_done.load(std::memory_order_acquire)) {
+      if (pop(item)) {  // a last item pushed before the flag
+        work(item);
+        continue;
+      }
+      return;
+    }
+    (void)wake.wait_for(epoch, kIdleWaitNs);
+  }
+}
+
+}  // namespace
+
+Pipeline::Pipeline(const PipelineConfig& config, hal::CameraSource& camera,
+                   const std::atomic<bool>& stop)
+    : config_(config), camera_(camera), stop_(stop) {}
+
+Pipeline::~Pipeline() = default;
+
+Status Pipeline::init(const std::string& output_dir) {
+  const hal::CameraIntrinsics& K = camera_.intrinsics();
+  if (K.width <= 0 || K.height <= 0) {
+    return runtime_error("pipeline: camera '" + camera_.describe() + "' is not open");
+  }
+  if (config_.pipeline.mode == "rgbd" && !camera_.capabilities().has_depth) {
+    return input_error("--mode rgbd: input '" + camera_.describe() + "' provides no depth");
+  }
+  if (camera_.pool().capacity() < kCaptureRingSize + 2) {
+    return invalid_argument("key 'camera.pool_size': expected at least " +
+                            std::to_string(kCaptureRingSize + 2) +
+                            " (capture ring + frames being captured and tracked), found " +
+                            std::to_string(camera_.pool().capacity()));
+  }
+  tracker_ = std::make_unique<frontend::PlaceholderTracker>(config_.tracking, K.width, K.height);
+  const auto trace = static_cast<std::size_t>(config_.telemetry.trace_capacity);
+  const BoardOptions& b = config_.board;
+  lat_capture_ =
+      std::make_unique<platform::LatencyRecorder>("capture", ms_to_ns(b.capture_budget_ms), trace);
+  lat_tracking_ = std::make_unique<platform::LatencyRecorder>(
+      "tracking", ms_to_ns(b.tracking_budget_ms), trace);
+  lat_output_ =
+      std::make_unique<platform::LatencyRecorder>("output", ms_to_ns(b.output_budget_ms), trace);
+  lat_end_to_end_ = std::make_unique<platform::LatencyRecorder>(
+      "end_to_end", ms_to_ns(b.end_to_end_budget_ms), trace);
+  Status s = output_.open(output_dir, config_.output);
+  if (!s.is_ok()) return s;
+  if (b.lock_memory) {
+    std::string err;
+    if (!platform::lock_memory(&err)) MER_LOG_WARN("mlockall failed: %s (continuing)", err.c_str());
+  }
+  initialized_ = true;
+  return Status::ok();
+}
+
+platform::BoardThreads Pipeline::resolve_threads() const {
+  const BoardOptions& b = config_.board;
+  platform::BoardThreads t = platform::find_board(b.profile).value_or(platform::kBoardGenericX86);
+  auto apply = [](platform::ThreadSpec& spec, int core, int prio) {
+    if (core != -2) spec.core = core;
+    if (prio != -1) spec.priority = prio;
+  };
+  apply(t.capture, b.capture_core, b.capture_priority);
+  apply(t.tracking, b.tracking_core, b.tracking_priority);
+  apply(t.output, b.output_core, b.output_priority);
+  return t;
+}
+
+bool Pipeline::reached_max_frames() const {
+  return config_.pipeline.max_frames > 0 &&
+         stats_.frames_in >= static_cast<std::uint64_t>(config_.pipeline.max_frames);
+}
+
+Status Pipeline::run() {
+  if (!initialized_) return runtime_error("pipeline: run() before init()");
+  const std::int64_t t0 = platform::monotonic_now_ns();
+  Status s = camera_.start();
+  if (!s.is_ok()) return s;
+  stats_.mode = config_.pipeline.lockstep ? "lockstep" : "threaded";
+  s = config_.pipeline.lockstep ? run_lockstep() : run_threaded();
+  camera_.stop();
+  Status c = output_.close();
+  finish_stats(t0);
+  if (!s.is_ok()) return s;
+  return c;
+}
+
+void Pipeline::finish_stats(std::int64_t t_start_ns) {
+  stats_.wall_time_s = static_cast<double>(platform::monotonic_now_ns() - t_start_ns) * kNsToS;
+  stats_.pose_source = tracker_->pose_source();
+  stats_.latency = {summarize(*lat_capture_), summarize(*lat_tracking_), summarize(*lat_output_),
+                    summarize(*lat_end_to_end_)};
+  stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
+}
+
+// ---- Lockstep ------------------------------------------------------------------------
+
+Status Pipeline::run_lockstep() {
+  platform::LockstepClock clock;
+  const auto timeout_ns =
+      static_cast<std::int64_t>(config_.pipeline.acquire_timeout_ms) * 1'000'000;
+  const auto warmup = static_cast<std::uint64_t>(config_.telemetry.warmup_frames);
+  int timeouts = 0;
+  while (true) {
+    if (stop_.load(std::memory_order_relaxed)) {
+      stats_.end_reason = "signal";
+      break;
+    }
+    if (reached_max_frames()) {
+      stats_.end_reason = "max_frames";
+      break;
+    }
+    // capture
+    hal::FrameHandle frame;
+    AllocScope cap_allocs;
+    const hal::AcquireStatus st = camera_.acquire(frame, timeout_ns);
+    const std::uint64_t cap_delta = cap_allocs.delta();
+    if (st == hal::AcquireStatus::kEndOfStream) {
+      stats_.end_reason = "end_of_stream";
+      break;
+    }
+    if (st == hal::AcquireStatus::kTimeout) {
+      ++stats_.acquire_timeouts;
+      if (++timeouts >= config_.pipeline.max_acquire_timeouts) {
+        stats_.end_reason = "source_error";
+        return input_error(camera_.describe() + ": no frame after " + std::to_string(timeouts) +
+                           " timeouts");
+      }
+      continue;
+    }
+    if (st != hal::AcquireStatus::kFrame) {
+      stats_.end_reason = "source_error";
+      const Status& e = camera_.last_error();
+      return input_error(e.is_ok() ? camera_.describe() + ": acquire failed" : e.message());
+    }
+    timeouts = 0;
+    ++stats_.frames_in;
+    clock.set_ns(frame->t_ns);
+    const bool steady = stats_.frames_in > warmup;
+    lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
+
+    // tracking
+    AllocScope trk_allocs;
+    const std::int64_t t_trk = platform::monotonic_now_ns();
+    frontend::TrackingResult r = tracker_->spin_once(*frame);
+    const std::int64_t t_done = platform::monotonic_now_ns();
+    r.t_ready_ns = frame->t_ready_ns;
+    r.stage_ns[static_cast<std::size_t>(frontend::StageId::kCapture)] = frame->produce_ns;
+    r.stage_ns[static_cast<std::size_t>(frontend::StageId::kQueue)] = t_trk - frame->t_ready_ns;
+    r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)] = t_done - t_trk;
+    lat_tracking_->record(r.seq, t_trk, t_done - t_trk);
+    lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
+    frame.reset();
+    ++stats_.frames_processed;
+    if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
+    if (r.is_keyframe) ++stats_.keyframes;
+    const std::uint64_t trk_delta = trk_allocs.delta();
+
+    // output
+    AllocScope out_allocs;
+    const std::int64_t out_ns = output_.spin_once(r, t_done - r.t_ready_ns);
+    lat_output_->record(r.seq, t_done, out_ns);
+    if (steady) {
+      allocs_capture_.allocations += cap_delta;
+      ++allocs_capture_.frames;
+      allocs_tracking_.allocations += trk_delta;
+      ++allocs_tracking_.frames;
+      allocs_output_.allocations += out_allocs.delta();
+      ++allocs_output_.frames;
+    }
+  }
+  return Status::ok();
+}
+
+// ---- Threaded --------------------------------------------------------------------------
+
+Status Pipeline::run_threaded() {
+  const platform::BoardThreads threads = resolve_threads();
+  const auto timeout_ns =
+      static_cast<std::int64_t>(config_.pipeline.acquire_timeout_ms) * 1'000'000;
+  const auto warmup = static_cast<std::uint64_t>(config_.telemetry.warmup_frames);
+  hal::FramePool& pool = camera_.pool();
+
+  // Rings and wake-ups live on this stack frame; the threads are joined before it unwinds.
+  auto capture_ring = std::make_unique<platform::OverwriteRing<std::uint32_t, kCaptureRingSize>>();
+  auto result_ring =
+      std::make_unique<platform::SpscRing<frontend::TrackingResult, kResultRingSize>>();
+  platform::Notifier capture_wake;
+  platform::Notifier result_wake;
+  std::atomic<bool> capture_done{false};
+  std::atomic<bool> tracking_done{false};
+  Status capture_status;
+
+  auto capture_body = [&] {
+    int timeouts = 0;
+    while (true) {
+      if (stop_.load(std::memory_order_relaxed)) {
+        stats_.end_reason = "signal";
+        break;
+      }
+      if (reached_max_frames()) {
+        stats_.end_reason = "max_frames";
+        break;
+      }
+      AllocScope allocs;
+      hal::FrameHandle frame;
+      const hal::AcquireStatus st = camera_.acquire(frame, timeout_ns);
+      if (st == hal::AcquireStatus::kEndOfStream) {
+        stats_.end_reason = "end_of_stream";
+        break;
+      }
+      if (st == hal::AcquireStatus::kTimeout) {
+        ++stats_.acquire_timeouts;
+        if (++timeouts >= config_.pipeline.max_acquire_timeouts) {
+          stats_.end_reason = "source_error";
+          capture_status = input_error(camera_.describe() + ": no frame after " +
+                                       std::to_string(timeouts) + " timeouts");
+          break;
+        }
+        continue;
+      }
+      if (st == hal::AcquireStatus::kPoolEmpty) {
+        ++stats_.pool_exhausted;
+        std::this_thread::sleep_for(std::chrono::nanoseconds(kPoolRetryNs));
+        continue;
+      }
+      if (st != hal::AcquireStatus::kFrame) {
+        stats_.end_reason = "source_error";
+        const Status& e = camera_.last_error();
+        capture_status =
+            input_error(e.is_ok() ? camera_.describe() + ": acquire failed" : e.message());
+        break;
+      }
+      timeouts = 0;
+      ++stats_.frames_in;
+      lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
+      // Drop-oldest: a full ring hands back the oldest frame; its buffer returns to the pool.
+      if (const auto evicted = capture_ring->push(frame.release_raw())) {
+        hal::FrameHandle dropped = pool.adopt(*evicted);
+        ++stats_.frames_dropped;
+      }
+      capture_wake.notify();
+      if (stats_.frames_in > warmup) {
+        allocs_capture_.allocations += allocs.delta();
+        ++allocs_capture_.frames;
+      }
+    }
+    capture_done.store(true, std::memory_order_release);
+    capture_wake.notify_all();
+  };
+
+  std::uint64_t tracked_frames = 0;
+  auto tracking_body = [&] {
+    consume_loop<std::uint32_t>(
+        capture_wake, capture_done, [&](std::uint32_t& idx) { return capture_ring->try_pop(idx); },
+        [&](std::uint32_t& idx) {
+          AllocScope allocs;
+          hal::FrameHandle frame = pool.adopt(idx);
+          const std::int64_t t_trk = platform::monotonic_now_ns();
+          frontend::TrackingResult r = tracker_->spin_once(*frame);
+          const std::int64_t t_done = platform::monotonic_now_ns();
+          r.t_ready_ns = frame->t_ready_ns;
+          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kCapture)] = frame->produce_ns;
+          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kQueue)] =
+              t_trk - frame->t_ready_ns;
+          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)] = t_done - t_trk;
+          lat_tracking_->record(r.seq, t_trk, t_done - t_trk);
+          lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
+          frame.reset();
+          ++stats_.frames_processed;
+          if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
+          if (r.is_keyframe) ++stats_.keyframes;
+          if (!result_ring->try_push(r)) {
+            ++stats_.output_overflows;
+            MER_LOG_WARN("output ring full: result of frame %llu not written",
+                         static_cast<unsigned long long>(r.seq));
+          }
+          result_wake.notify();
+          if (++tracked_frames > warmup) {
+            allocs_tracking_.allocations += allocs.delta();
+            ++allocs_tracking_.frames;
+          }
+        });
+    tracking_done.store(true, std::memory_order_release);
+    result_wake.notify_all();
+  };
+
+  std::uint64_t written_frames = 0;
+  auto output_body = [&] {
+    consume_loop<frontend::TrackingResult>(
+        result_wake, tracking_done,
+        [&](frontend::TrackingResult& r) { return result_ring->try_pop(r); },
+        [&](frontend::TrackingResult& r) {
+          AllocScope allocs;
+          const std::int64_t t0 = platform::monotonic_now_ns();
+          const std::int64_t out_ns = output_.spin_once(
+              r, r.stage_ns[static_cast<std::size_t>(frontend::StageId::kQueue)] +
+                     r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)]);
+          lat_output_->record(r.seq, t0, out_ns);
+          if (++written_frames > warmup) {
+            allocs_output_.allocations += allocs.delta();
+            ++allocs_output_.frames;
+          }
+        });
+  };
+
+  platform::RtThread output_thread;
+  platform::RtThread tracking_thread;
+  platform::RtThread capture_thread;
+  // Start consumers first so the capture ring is drained from the first frame.
+  const bool ok = output_thread.start(threads.output, output_body) &&
+                  tracking_thread.start(threads.tracking, tracking_body) &&
+                  capture_thread.start(threads.capture, capture_body);
+  if (!ok) {
+    capture_done.store(true);
+    capture_wake.notify_all();
+    tracking_done.store(true);
+    result_wake.notify_all();
+  }
+  capture_thread.join();
+  tracking_thread.join();
+  output_thread.join();
+  if (!ok) return runtime_error("pipeline: could not start the stage threads");
+
+  const std::pair<const platform::ThreadSpec*, const platform::RtThread*> placed[] = {
+      {&threads.capture, &capture_thread},
+      {&threads.tracking, &tracking_thread},
+      {&threads.output, &output_thread}};
+  for (const auto& [spec, t] : placed) {
+    stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
+                                             t->report().fully_applied(), t->report().warning});
+  }
+  return capture_status;
+}
+
+}  // namespace mer::pipeline

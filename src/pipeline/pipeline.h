@@ -1,0 +1,137 @@
+#pragma once
+/// @file pipeline.h
+/// The one place that wires the stages:
+///
+///   capture (CameraSource) --OverwriteRing<slot>--> tracking --SpscRing<result>--> output
+///
+/// Threaded mode: each stage runs on its own RtThread (name, core and priority from the
+/// board's thread table). Capture never blocks: when tracking falls behind, the ring drops
+/// the oldest frame, hands its buffer back to the pool and counts it. Tracking never waits
+/// on output: a full result ring is counted as an output overflow.
+///
+/// Lockstep mode: the same stage objects run sequentially on the calling thread in a
+/// fixed order (capture -> tracking -> output), with a lockstep clock set to each frame's
+/// timestamp: the same input gives bit-identical trajectory/keyframes/frames files.
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/status.h"
+#include "frontend/placeholder_tracker.h"
+#include "hal/camera.h"
+#include "pipeline/output_stage.h"
+#include "pipeline/pipeline_options.h"
+#include "platform/latency_recorder.h"
+#include "platform/thread_table.h"
+
+namespace mer::pipeline {
+
+/// Frames the capture ring holds (compile-time: rings are fixed-size). The camera pool
+/// must hold at least this plus the frames being captured and tracked.
+inline constexpr std::size_t kCaptureRingSize = 4;
+/// Tracking results buffered for the output thread.
+inline constexpr std::size_t kResultRingSize = 256;
+
+/// Everything the pipeline needs from the configuration.
+struct PipelineConfig {
+  PipelineOptions pipeline;
+  BoardOptions board;
+  TelemetryOptions telemetry;
+  OutputOptions output;
+  frontend::TrackingOptions tracking;
+};
+
+/// Latency of one stage, summarized.
+struct StageLatency {
+  std::string name;  ///< capture, tracking, output, end_to_end
+  double p50_ms = 0.0;
+  double p90_ms = 0.0;
+  double p99_ms = 0.0;
+  double max_ms = 0.0;
+  double mean_ms = 0.0;
+  double budget_ms = 0.0;
+  std::uint64_t count = 0;
+  std::uint64_t overruns = 0;  ///< samples above budget
+};
+
+/// Steady-state heap allocations per frame of one thread.
+struct ThreadAllocs {
+  std::string thread;             ///< capture, tracking, output
+  std::uint64_t allocations = 0;  ///< heap allocations in steady state
+  std::uint64_t frames = 0;       ///< frames in steady state
+  double per_frame() const { return frames ? static_cast<double>(allocations) / frames : 0.0; }
+};
+
+/// How a thread was actually placed (RT priority may be refused without privileges).
+struct ThreadPlacement {
+  std::string thread;
+  int core = -1;
+  int priority = 0;
+  bool applied = false;  ///< affinity and priority were applied as asked
+  std::string note;      ///< why not, when not
+};
+
+/// Counters and summaries of one run.
+struct PipelineStats {
+  std::uint64_t frames_in = 0;         ///< frames delivered by the source
+  std::uint64_t frames_processed = 0;  ///< frames tracking ran on
+  std::uint64_t frames_dropped = 0;    ///< frames evicted from the capture ring (threaded)
+  std::uint64_t frames_lost = 0;       ///< processed frames without a pose
+  std::uint64_t keyframes = 0;
+  std::uint64_t map_points = 0;
+  std::uint64_t pool_exhausted = 0;    ///< acquire found every frame buffer in use
+  std::uint64_t output_overflows = 0;  ///< results lost because the output ring was full
+  std::uint64_t acquire_timeouts = 0;
+  double wall_time_s = 0.0;
+  std::string mode;         ///< "lockstep" or "threaded"
+  std::string pose_source;  ///< where poses come from (placeholder tracking)
+  std::string end_reason;   ///< end_of_stream, max_frames, signal, source_error
+  std::vector<StageLatency> latency;
+  std::vector<ThreadAllocs> allocs;
+  std::vector<ThreadPlacement> threads;
+};
+
+/// Owns the stages and runs them.
+class Pipeline {
+ public:
+  /// `camera` must be opened; `stop` is polled (e.g. set from a SIGINT handler).
+  Pipeline(const PipelineConfig& config, hal::CameraSource& camera, const std::atomic<bool>& stop);
+  ~Pipeline();
+
+  /// Allocates every stage and opens the output files in `output_dir` (may be empty).
+  Status init(const std::string& output_dir);
+
+  /// Runs to the end of the input, max_frames, a source error or `stop`. Outputs are
+  /// flushed and closed before returning, whatever the reason.
+  Status run();
+
+  /// Counters and latency summaries (complete after run()).
+  const PipelineStats& stats() const { return stats_; }
+
+ private:
+  Status run_lockstep();
+  Status run_threaded();
+  void finish_stats(std::int64_t t_start_ns);
+  platform::BoardThreads resolve_threads() const;
+  bool reached_max_frames() const;
+
+  PipelineConfig config_;
+  hal::CameraSource& camera_;
+  const std::atomic<bool>& stop_;
+  std::unique_ptr<frontend::PlaceholderTracker> tracker_;
+  OutputStage output_;
+  std::unique_ptr<platform::LatencyRecorder> lat_capture_;
+  std::unique_ptr<platform::LatencyRecorder> lat_tracking_;
+  std::unique_ptr<platform::LatencyRecorder> lat_output_;
+  std::unique_ptr<platform::LatencyRecorder> lat_end_to_end_;
+  ThreadAllocs allocs_capture_{"capture"};
+  ThreadAllocs allocs_tracking_{"tracking"};
+  ThreadAllocs allocs_output_{"output"};
+  PipelineStats stats_;
+  bool initialized_ = false;
+};
+
+}  // namespace mer::pipeline

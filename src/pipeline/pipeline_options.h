@@ -1,0 +1,116 @@
+#pragma once
+/// @file pipeline_options.h
+/// Options of the pipeline, the board (threads, budgets), telemetry and outputs.
+
+#include <array>
+#include <string>
+#include <string_view>
+
+#include "core/options.h"
+
+namespace mer::pipeline {
+
+inline constexpr std::array<std::string_view, 2> kModes{"mono", "rgbd"};
+inline constexpr std::array<std::string_view, 2> kFocalModes{"fixed", "auto"};
+inline constexpr std::array<std::string_view, 3> kBoardProfiles{"generic_x86", "rpi4",
+                                                                "jetson_orin"};
+inline constexpr std::array<std::string_view, 4> kLogLevels{"debug", "info", "warn", "error"};
+
+/// How the pipeline runs (config section `pipeline`).
+struct PipelineOptions {
+  std::string mode = "mono";      ///< mono | rgbd (rgbd needs a source with depth)
+  bool lockstep = false;          ///< run stages sequentially and deterministically
+  int max_frames = 0;             ///< stop after this many frames from the source (0: all)
+  int acquire_timeout_ms = 1000;  ///< wait for a frame this long before retrying
+  int max_acquire_timeouts = 5;   ///< consecutive timeouts before the source counts as dead
+  std::string focal = "fixed";    ///< fixed: use calibration; auto: estimate the focal length
+
+  template <class V>
+  void visit(V& v) {
+    v.field("mode", mode, "sensor mode", options::OneOf{kModes});
+    v.field("lockstep", lockstep,
+            "sequential deterministic replay (no drops, as fast as possible)");
+    v.field("max_frames", max_frames, "stop after N source frames (0: whole input)",
+            options::Range<int>{0, 1 << 30});
+    v.field("acquire_timeout_ms", acquire_timeout_ms, "wait for a frame this long, ms",
+            options::Range<int>{1, 60000});
+    v.field("max_acquire_timeouts", max_acquire_timeouts,
+            "consecutive acquire timeouts before giving up on the source",
+            options::Range<int>{1, 1000000});
+    v.field("focal", focal, "focal length: fixed (calibrated) or auto (estimated)",
+            options::OneOf{kFocalModes});
+  }
+};
+
+/// Thread placement and latency budgets of the board (config section `board`; a file from
+/// configs/boards/ passed with --board holds the same keys at its top level).
+struct BoardOptions {
+  std::string profile = "generic_x86";  ///< built-in thread table (platform/thread_table.h)
+  int capture_core = -2;                ///< CPU for the capture thread (-1: any, -2: from profile)
+  int capture_priority = -1;            ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
+  int tracking_core = -2;               ///< CPU for the tracking thread (-1: any, -2: from profile)
+  int tracking_priority = -1;           ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
+  int output_core = -2;                 ///< CPU for the output thread (-1: any, -2: from profile)
+  int output_priority = -1;             ///< priority of the output thread (-1: from profile)
+  bool lock_memory = false;  ///< mlockall() at start (needs CAP_IPC_LOCK or a memlock limit)
+  double capture_budget_ms =
+      15.0;  ///< capture stage budget per frame, ms (incl. synthetic rendering)
+  double tracking_budget_ms = 30.0;    ///< tracking stage budget per frame, ms
+  double output_budget_ms = 5.0;       ///< output stage budget per frame, ms
+  double end_to_end_budget_ms = 50.0;  ///< frame ready -> tracking result, ms
+
+  template <class V>
+  void visit(V& v) {
+    v.field("profile", profile, "built-in thread table", options::OneOf{kBoardProfiles});
+    v.field("capture_core", capture_core, "capture thread CPU (-1 any, -2 profile)",
+            options::Range<int>{-2, 1023});
+    v.field("capture_priority", capture_priority,
+            "capture SCHED_FIFO priority (0 normal, -1 profile)", options::Range<int>{-1, 99});
+    v.field("tracking_core", tracking_core, "tracking thread CPU (-1 any, -2 profile)",
+            options::Range<int>{-2, 1023});
+    v.field("tracking_priority", tracking_priority,
+            "tracking SCHED_FIFO priority (0 normal, -1 profile)", options::Range<int>{-1, 99});
+    v.field("output_core", output_core, "output thread CPU (-1 any, -2 profile)",
+            options::Range<int>{-2, 1023});
+    v.field("output_priority", output_priority, "output thread priority (0 normal, -1 profile)",
+            options::Range<int>{-1, 99});
+    v.field("lock_memory", lock_memory, "mlockall() at start");
+    v.field("capture_budget_ms", capture_budget_ms, "capture budget per frame, ms",
+            options::Range<double>{0.0, 10000.0});
+    v.field("tracking_budget_ms", tracking_budget_ms, "tracking budget per frame, ms",
+            options::Range<double>{0.0, 10000.0});
+    v.field("output_budget_ms", output_budget_ms, "output budget per frame, ms",
+            options::Range<double>{0.0, 10000.0});
+    v.field("end_to_end_budget_ms", end_to_end_budget_ms,
+            "frame ready to tracking result budget, ms", options::Range<double>{0.0, 10000.0});
+  }
+};
+
+/// Latency and allocation accounting (config section `telemetry`).
+struct TelemetryOptions {
+  int warmup_frames = 10;          ///< frames excluded from steady-state allocation counts
+  int trace_capacity = 4096;       ///< latency samples kept per stage in the trace ring
+  std::string log_level = "info";  ///< least severe log level printed
+
+  template <class V>
+  void visit(V& v) {
+    v.field("warmup_frames", warmup_frames, "frames before steady state (allocation counts)",
+            options::Range<int>{0, 1000000});
+    v.field("trace_capacity", trace_capacity, "latency trace samples kept per stage",
+            options::Range<int>{16, 1 << 22});
+    v.field("log_level", log_level, "least severe log level printed", options::OneOf{kLogLevels});
+  }
+};
+
+/// Output files (config section `output`).
+struct OutputOptions {
+  int flush_every = 30;  ///< flush output files every N frames (bounds loss on power cut)
+
+  template <class V>
+  void visit(V& v) {
+    v.field("flush_every", flush_every, "flush output files every N frames",
+            options::Range<int>{1, 1000000});
+  }
+};
+
+}  // namespace mer::pipeline

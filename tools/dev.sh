@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# mer-slam developer entry point. On a fresh Debian 12 machine:
+#   tools/dev.sh demo    install what is missing, build (Release), run mer_slam on the
+#                        synthetic camera and print its summary
+#   tools/dev.sh test    install what is missing, build, run the whole test suite
+# Other commands:
+#   tools/dev.sh setup              apt-get install the missing build dependencies
+#   tools/dev.sh build [preset]     configure + build (presets: default release asan tsan arm64)
+#   tools/dev.sh test [preset]      setup + build + ctest (tsan: the 'concurrency' tests)
+#   tools/dev.sh lint               clang-format + clang-tidy checks (also run by ctest)
+#   tools/dev.sh bench              build Release and run the Google Benchmark suite
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+JOBS="${MER_JOBS:-2}"
+
+# Debian packages the build, tests and lint need.
+PACKAGES=(
+  g++ cmake make ccache pkg-config
+  libeigen3-dev
+  libopencv-core-dev libopencv-imgproc-dev libopencv-features2d-dev libopencv-imgcodecs-dev
+  libgtest-dev libbenchmark-dev
+  clang-format clang-tidy
+)
+
+log() { printf '\033[1m[dev.sh]\033[0m %s\n' "$*"; }
+
+setup() {
+  local missing=()
+  for p in "${PACKAGES[@]}"; do
+    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed'; then
+      missing+=("$p")
+    fi
+  done
+  if [ ${#missing[@]} -eq 0 ]; then
+    log "all build dependencies present"
+    return
+  fi
+  log "installing: ${missing[*]}"
+  local sudo=()
+  if [ "$(id -u)" -ne 0 ]; then
+    command -v sudo >/dev/null || { echo "dev.sh: need root or sudo to install ${missing[*]}" >&2; exit 1; }
+    sudo=(sudo)
+  fi
+  "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get update -qq
+  "${sudo[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
+}
+
+build() {
+  local preset="${1:-default}"
+  log "configure + build preset '$preset'"
+  cmake --preset "$preset" >/dev/null
+  cmake --build --preset "$preset" -j "$JOBS"
+}
+
+run_tests() {
+  local preset="${1:-default}"
+  setup
+  build "$preset"
+  log "ctest preset '$preset'"
+  ctest --preset "$preset" --output-on-failure -j "$JOBS"
+}
+
+demo() {
+  setup
+  build release
+  local out="$ROOT/build/demo-output"
+  log "mer_slam on the synthetic camera (threaded, camera rate) -> $out"
+  "$ROOT/build/release/src/app/mer_slam" --input synthetic:room_orbit --output "$out"
+  log "outputs: $(cd "$out" && ls | tr '\n' ' ')"
+}
+
+lint() {
+  build default
+  ctest --preset default -L lint --output-on-failure -j "$JOBS"
+}
+
+bench() {
+  setup
+  build release
+  "$ROOT/build/release/tests/bench/mer_bench_platform" --benchmark_repetitions=5 \
+    --benchmark_report_aggregates_only=true
+}
+
+cmd="${1:-help}"
+shift || true
+case "$cmd" in
+  setup) setup ;;
+  build) setup; build "${1:-default}" ;;
+  test) run_tests "${1:-default}" ;;
+  demo) demo ;;
+  lint) setup; lint ;;
+  bench) bench ;;
+  *) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; [ "$cmd" = help ] || exit 2 ;;
+esac
