@@ -49,9 +49,10 @@ setup() {
 
 build() {
   local preset="${1:-default}"
-  log "configure + build preset '$preset'"
+  shift || true
+  log "configure + build preset '$preset' $*"
   cmake --preset "$preset" >/dev/null
-  cmake --build --preset "$preset" -j "$JOBS"
+  cmake --build --preset "$preset" -j "$JOBS" "$@"
 }
 
 run_tests() {
@@ -64,7 +65,7 @@ run_tests() {
 
 demo() {
   setup
-  build release
+  build release --target mer_slam
   local out="$ROOT/build/demo-output"
   log "mer_slam on the synthetic camera (threaded, camera rate) -> $out"
   "$ROOT/build/release/src/app/mer_slam" --input synthetic:room_orbit --output "$out"

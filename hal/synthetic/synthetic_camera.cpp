@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -133,9 +134,11 @@ CameraCapabilities SyntheticCamera::capabilities() const {
 }
 
 std::string SyntheticCamera::describe() const {
-  return "synthetic:" + scenario_ + " (" + std::to_string(opts_.width) + "x" +
-         std::to_string(opts_.height) + " @ " + std::to_string(opts_.fps) + " Hz, " +
-         std::to_string(opts_.num_frames) + " frames, seed " + std::to_string(opts_.seed) + ")";
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "synthetic:%s (%dx%d @ %g Hz, %d frames, seed %d)",
+                scenario_.c_str(), opts_.width, opts_.height, opts_.fps, opts_.num_frames,
+                opts_.seed);
+  return buf;
 }
 
 SE3d SyntheticCamera::pose_at(double t_s) const {
