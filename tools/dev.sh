@@ -80,8 +80,11 @@ lint() {
 bench() {
   setup
   build release
-  "$ROOT/build/release/tests/bench/mer_bench_platform" --benchmark_repetitions=5 \
-    --benchmark_report_aggregates_only=true
+  for b in "$ROOT"/build/release/tests/bench/mer_bench_*; do
+    [ -x "$b" ] || continue
+    log "$(basename "$b")"
+    "$b" --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+  done
 }
 
 cmd="${1:-help}"

@@ -2,8 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
-#include <cstdio>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <thread>
@@ -13,14 +13,36 @@
 namespace mer::hal {
 namespace {
 
-constexpr std::array<std::string_view, 1> kScenarios{"room_orbit"};
+constexpr std::array<std::string_view, 4> kScenarios{"room_orbit", "room_loop", "room_kidnap",
+                                                     "room_fast_rotation"};
 constexpr std::size_t kNoiseTableSize = 1 << 16;  // noise values, cycled with a per-frame offset
 constexpr int kShapesPerWall = 160;               // texture primitives per wall
 constexpr double kNsPerS = 1e9;
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+constexpr double kEyeHeight = 1.3;         // camera height above the floor, m
+constexpr double kOrbitPeriodS = 20.0;     // room_orbit: one revolution, s
+constexpr double kOrbitRadius = 0.8;       // room_orbit: radius of the camera circle, m
+constexpr double kLoopPeriodS = 20.0;      // room_loop: one lap, s
+constexpr double kLoopSemiAxisX = 1.5;     // room_loop: ellipse semi-axis along x, m
+constexpr double kLoopSemiAxisY = 1.0;     // room_loop: ellipse semi-axis along y, m
+constexpr double kLoopOutwardRad = 0.6;    // room_loop: view turned outwards from the path
+constexpr double kBurstPeriodS = 8.0;      // room_fast_rotation: one turn every 8 s
+constexpr double kBurstStartS = 3.0;       // room_fast_rotation: turn starts 3 s into a period
+constexpr double kBoxClearance = 0.45;     // boxes stay this far outside the camera paths, m
+constexpr double kWallMargin = 0.1;        // boxes stay this far from the walls, m
+constexpr double kBoxTextureMetres = 2.0;  // a texture tile spans this many metres on a box
+constexpr int kBoxPlacementTries = 200;    // rejection-sampling budget per box
+constexpr std::size_t kMaxBoxes = 16;      // upper bound of num_boxes (options range)
+constexpr float kNearPlane = 1e-3F;        // box corners closer than this count as behind
+
+// Smooth 0 -> 1 ramp over x in [0, 1] with zero slope at both ends (peak slope 1.5).
+double smoothstep(double x) {
+  x = std::clamp(x, 0.0, 1.0);
+  return x * x * (3.0 - 2.0 * x);
+}
 
 // Portable normal deviates (std::normal_distribution differs between standard libraries).
 double normal_deviate(std::mt19937& rng) {
-  constexpr double kTwoPi = 2.0 * std::numbers::pi;
   const double u1 = (static_cast<double>(rng()) + 1.0) / 4294967297.0;
   const double u2 = static_cast<double>(rng()) / 4294967296.0;
   return std::sqrt(-2.0 * std::log(u1)) * std::cos(kTwoPi * u2);
@@ -85,6 +107,10 @@ Status SyntheticCamera::open(std::size_t pool_size) {
     return input_error("synthetic:" + scenario_ + ": unknown scenario (available: " + names + ")");
   }
   if (Status s = options::validate(opts_); !s.is_ok()) return s;
+  kind_ = scenario_ == "room_loop"            ? Scenario::kLoop
+          : scenario_ == "room_kidnap"        ? Scenario::kKidnap
+          : scenario_ == "room_fast_rotation" ? Scenario::kFastRotation
+                                              : Scenario::kOrbit;
   if (pool_size == 0) return invalid_argument("synthetic camera: pool size must be > 0");
 
   const int w = opts_.width;
@@ -104,6 +130,7 @@ Status SyntheticCamera::open(std::size_t pool_size) {
   }
   std::mt19937 rng(static_cast<std::uint32_t>(opts_.seed));
   for (auto& tex : textures_) tex = make_texture(opts_.texture_size, rng);
+  place_boxes(rng());
   noise_.resize(kNoiseTableSize);
   for (auto& n : noise_) {
     n = static_cast<std::int8_t>(
@@ -141,22 +168,99 @@ std::string SyntheticCamera::describe() const {
   return buf;
 }
 
-SE3d SyntheticCamera::pose_at(double t_s) const {
-  // room_orbit: a handheld-like orbit around the room centre, looking across the room,
-  // one revolution every 20 s, with slow height and look-at wobble.
-  constexpr double kPeriodS = 20.0;
-  constexpr double kRadius = 0.8;
-  constexpr double kEyeHeight = 1.3;
-  const double a = 2.0 * std::numbers::pi * t_s / kPeriodS;
-  const Eigen::Vector3d eye(kRadius * std::cos(a), kRadius * std::sin(a),
+SE3d SyntheticCamera::orbit_pose(double t_s) const {
+  // A handheld-like orbit around the room centre, looking across the room, with slow
+  // height and look-at wobble.
+  const double a = kTwoPi * t_s / kOrbitPeriodS;
+  const Eigen::Vector3d eye(kOrbitRadius * std::cos(a), kOrbitRadius * std::sin(a),
                             kEyeHeight + 0.1 * std::sin(2.3 * a));
   const Eigen::Vector3d target(eye.x() + std::cos(a + 1.2), eye.y() + std::sin(a + 1.2),
                                kEyeHeight + 0.15 * std::sin(1.7 * a));
   return look_at(eye, target, Eigen::Vector3d::UnitZ());
 }
 
+ScenarioSample SyntheticCamera::sample_at(double t_s) const {
+  ScenarioSample s;
+  switch (kind_) {
+    case Scenario::kOrbit:
+      s.T_w_c = orbit_pose(t_s);
+      break;
+    case Scenario::kLoop: {
+      // Counter-clockwise ellipse, looking ahead and turned outwards (to the right).
+      const double phi = kTwoPi * t_s / kLoopPeriodS;
+      const Eigen::Vector3d eye(kLoopSemiAxisX * std::cos(phi), kLoopSemiAxisY * std::sin(phi),
+                                kEyeHeight + 0.05 * std::sin(3.0 * phi));
+      const double heading =
+          std::atan2(kLoopSemiAxisY * std::cos(phi), -kLoopSemiAxisX * std::sin(phi)) -
+          kLoopOutwardRad;
+      const Eigen::Vector3d target = eye + Eigen::Vector3d(std::cos(heading), std::sin(heading),
+                                                           -0.05 + 0.05 * std::sin(2.0 * phi));
+      s.T_w_c = look_at(eye, target, Eigen::Vector3d::UnitZ());
+      break;
+    }
+    case Scenario::kKidnap: {
+      const double black_end = opts_.kidnap_start_s + opts_.kidnap_black_s;
+      if (t_s < opts_.kidnap_start_s) {
+        s.T_w_c = orbit_pose(t_s);
+      } else if (t_s < black_end) {
+        s.T_w_c = orbit_pose(opts_.kidnap_start_s);
+        s.visible = false;
+      } else {
+        s.T_w_c = orbit_pose(std::max(0.0, t_s - opts_.kidnap_black_s - opts_.kidnap_back_s));
+      }
+      break;
+    }
+    case Scenario::kFastRotation: {
+      const double in_period = std::fmod(t_s, kBurstPeriodS);
+      const double turns = std::floor(t_s / kBurstPeriodS) +
+                           smoothstep((in_period - kBurstStartS) / opts_.rotation_burst_s);
+      const SE3d base = orbit_pose(t_s);
+      SE3d T = base;
+      // Yaw about the world vertical through the camera centre.
+      T.linear() = Eigen::AngleAxisd(kTwoPi * turns, Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                   base.linear();
+      s.T_w_c = T;
+      break;
+    }
+  }
+  return s;
+}
+
+void SyntheticCamera::place_boxes(std::uint32_t seed) {
+  // Boxes stand on the floor, inside the room, and clear of every scripted camera path
+  // (the orbit circle lies inside the loop ellipse, so clearing the ellipse clears both).
+  std::mt19937 rng(seed);
+  boxes_.clear();
+  const double hx = 0.5 * opts_.room_size_x - kWallMargin;
+  const double hy = 0.5 * opts_.room_size_y - kWallMargin;
+  const double ax = kLoopSemiAxisX + kBoxClearance;
+  const double ay = kLoopSemiAxisY + kBoxClearance;
+  for (int b = 0; b < opts_.num_boxes; ++b) {
+    for (int attempt = 0; attempt < kBoxPlacementTries; ++attempt) {
+      const double sx = uniform(rng, 0.3, 0.8);
+      const double sy = uniform(rng, 0.3, 0.8);
+      const double sz = uniform(rng, 0.3, 1.2);
+      const double cx = uniform(rng, -hx + 0.5 * sx, hx - 0.5 * sx);
+      const double cy = uniform(rng, -hy + 0.5 * sy, hy - 0.5 * sy);
+      // In ellipse-normalized coordinates the footprint is still an axis-aligned rectangle;
+      // it clears the ellipse when its point closest to the centre lies outside it.
+      const double nx = std::clamp(0.0, (cx - 0.5 * sx) / ax, (cx + 0.5 * sx) / ax);
+      const double ny = std::clamp(0.0, (cy - 0.5 * sy) / ay, (cy + 0.5 * sy) / ay);
+      const bool clear = nx * nx + ny * ny > 1.0;
+      if (!clear) continue;
+      boxes_.push_back(
+          SceneBox{Eigen::Vector3f(static_cast<float>(cx - 0.5 * sx),
+                                   static_cast<float>(cy - 0.5 * sy), 0.0F),
+                   Eigen::Vector3f(static_cast<float>(cx + 0.5 * sx),
+                                   static_cast<float>(cy + 0.5 * sy), static_cast<float>(sz)),
+                   static_cast<int>(rng() % textures_.size())});
+      break;
+    }
+  }
+}
+
 void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
-                             std::uint64_t noise_offset) const {
+                             std::uint64_t noise_offset, float gain) const {
   const Eigen::Matrix3f R = T_w_c.linear().cast<float>();
   const Eigen::Vector3f o = T_w_c.translation().cast<float>();
   const std::array<float, 3> lo{static_cast<float>(-0.5 * opts_.room_size_x),
@@ -166,9 +270,72 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
                                 static_cast<float>(opts_.room_height)};
   const int tsize = opts_.texture_size;
   const float tmax = static_cast<float>(tsize - 1) - 1e-3F;
+  const float box_scale = static_cast<float>(tsize - 1) / static_cast<float>(kBoxTextureMetres);
   const std::size_t noise_mask = kNoiseTableSize - 1;
   std::size_t noise_i = static_cast<std::size_t>(noise_offset * 7919U) & noise_mask;
   const bool noisy = opts_.noise_sigma > 0.0;
+  constexpr float kTiny = 1e-9F;
+  constexpr float kHuge = 1e30F;
+
+  // Bilinear texture lookup at (fu, fv) in [0, tsize - 1).
+  auto sample = [tsize](const std::vector<std::uint8_t>& texture, float fu, float fv) {
+    const int iu = static_cast<int>(fu);
+    const int iv = static_cast<int>(fv);
+    const float au = fu - static_cast<float>(iu);
+    const float av = fv - static_cast<float>(iv);
+    const std::uint8_t* t = texture.data() +
+                            static_cast<std::size_t>(iv) * static_cast<std::size_t>(tsize) +
+                            static_cast<std::size_t>(iu);
+    const float top = t[0] + au * (static_cast<float>(t[1]) - t[0]);
+    const float bot = t[tsize] + au * (static_cast<float>(t[tsize + 1]) - t[tsize]);
+    return top + av * (bot - top);
+  };
+  // Repeating texture coordinate for box faces.
+  auto wrap = [tmax, box_scale](float metres) {
+    const float f = metres * box_scale;
+    return f - tmax * std::floor(f / tmax);
+  };
+
+  // Per-frame culling: each box is only tested for the pixels inside its projected
+  // bounding rectangle (the whole image when a corner is behind the camera).
+  struct BoxWindow {
+    const SceneBox* box;
+    int u0, u1, v0, v1;
+  };
+  std::array<BoxWindow, kMaxBoxes> windows{};
+  std::size_t num_windows = 0;
+  const Eigen::Matrix3f R_c_w = R.transpose();
+  for (const SceneBox& b : boxes_) {
+    float u_min = kHuge, u_max = -kHuge, v_min = kHuge, v_max = -kHuge;
+    int behind = 0;
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3f corner((c & 1) ? b.hi.x() : b.lo.x(), (c & 2) ? b.hi.y() : b.lo.y(),
+                                   (c & 4) ? b.hi.z() : b.lo.z());
+      const Eigen::Vector3f p_c = R_c_w * (corner - o);
+      if (p_c.z() <= kNearPlane) {
+        ++behind;
+        continue;
+      }
+      const float u = static_cast<float>(intrinsics_.fx) * p_c.x() / p_c.z() +
+                      static_cast<float>(intrinsics_.cx);
+      const float v = static_cast<float>(intrinsics_.fy) * p_c.y() / p_c.z() +
+                      static_cast<float>(intrinsics_.cy);
+      u_min = std::min(u_min, u);
+      u_max = std::max(u_max, u);
+      v_min = std::min(v_min, v);
+      v_max = std::max(v_max, v);
+    }
+    if (behind == 8) continue;
+    BoxWindow w{&b, 0, gray.cols - 1, 0, gray.rows - 1};
+    if (behind == 0) {
+      w.u0 = static_cast<int>(std::max(0.0F, std::floor(u_min) - 1.0F));
+      w.u1 = static_cast<int>(std::min(static_cast<float>(gray.cols - 1), std::ceil(u_max) + 1.0F));
+      w.v0 = static_cast<int>(std::max(0.0F, std::floor(v_min) - 1.0F));
+      w.v1 = static_cast<int>(std::min(static_cast<float>(gray.rows - 1), std::ceil(v_max) + 1.0F));
+      if (w.u0 > w.u1 || w.v0 > w.v1) continue;
+    }
+    windows[num_windows++] = w;
+  }
 
   for (int v = 0; v < gray.rows; ++v) {
     std::uint8_t* row = gray.ptr<std::uint8_t>(v);
@@ -177,35 +344,63 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
         rays_.data() + static_cast<std::size_t>(v) * static_cast<std::size_t>(gray.cols) * 2;
     for (int u = 0; u < gray.cols; ++u, ray += 2) {
       const Eigen::Vector3f d = R * Eigen::Vector3f(ray[0], ray[1], 1.0F);
-      // Exit distance through the box along each axis; the smallest one is the wall hit.
-      float t = std::numeric_limits<float>::max();
+      const Eigen::Vector3f inv(std::abs(d.x()) > kTiny ? 1.0F / d.x() : kHuge,
+                                std::abs(d.y()) > kTiny ? 1.0F / d.y() : kHuge,
+                                std::abs(d.z()) > kTiny ? 1.0F / d.z() : kHuge);
+      // Exit distance through the room along each axis; the smallest one is the wall hit.
+      float t = kHuge;
       int axis = 0;
       int side = 0;
       for (int a = 0; a < 3; ++a) {
-        if (std::abs(d[a]) < 1e-9F) continue;
         const int s = d[a] > 0.0F ? 1 : 0;
-        const float ta = ((s != 0 ? hi[a] : lo[a]) - o[a]) / d[a];
-        if (ta < t) {
+        const float ta = ((s != 0 ? hi[a] : lo[a]) - o[a]) * inv[a];
+        if (ta > 0.0F && ta < t) {
           t = ta;
           axis = a;
           side = s;
         }
       }
+      // Nearest box in front of the wall (slab test).
+      const SceneBox* hit_box = nullptr;
+      int box_axis = 0;
+      for (std::size_t k = 0; k < num_windows; ++k) {
+        const BoxWindow& w = windows[k];
+        if (u < w.u0 || u > w.u1 || v < w.v0 || v > w.v1) continue;
+        const SceneBox& b = *w.box;
+        float t_near = 0.0F;
+        float t_far = kHuge;
+        int near_axis = 0;
+        for (int a = 0; a < 3; ++a) {
+          float t1 = (b.lo[a] - o[a]) * inv[a];
+          float t2 = (b.hi[a] - o[a]) * inv[a];
+          if (t1 > t2) std::swap(t1, t2);
+          if (t1 > t_near) {
+            t_near = t1;
+            near_axis = a;
+          }
+          t_far = std::min(t_far, t2);
+        }
+        if (t_near > 0.0F && t_near <= t_far && t_near < t) {
+          t = t_near;
+          hit_box = &b;
+          box_axis = near_axis;
+        }
+      }
       const Eigen::Vector3f p = o + t * d;
-      const int pa = axis == 0 ? 1 : 0;
-      const int qa = axis == 2 ? 1 : 2;
-      const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax;
-      const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax;
-      const int iu = static_cast<int>(fu);
-      const int iv = static_cast<int>(fv);
-      const float au = fu - static_cast<float>(iu);
-      const float av = fv - static_cast<float>(iv);
-      const std::uint8_t* tex = textures_[static_cast<std::size_t>(axis * 2 + side)].data() +
-                                static_cast<std::size_t>(iv) * static_cast<std::size_t>(tsize) +
-                                static_cast<std::size_t>(iu);
-      const float top = tex[0] + au * (static_cast<float>(tex[1]) - tex[0]);
-      const float bot = tex[tsize] + au * (static_cast<float>(tex[tsize + 1]) - tex[tsize]);
-      float value = top + av * (bot - top);
+      float value = 0.0F;
+      if (hit_box != nullptr) {
+        const int pa = box_axis == 0 ? 1 : 0;
+        const int qa = box_axis == 2 ? 1 : 2;
+        value = sample(textures_[static_cast<std::size_t>(hit_box->texture)],
+                       wrap(p[pa] - hit_box->lo[pa]), wrap(p[qa] - hit_box->lo[qa]));
+      } else {
+        const int pa = axis == 0 ? 1 : 0;
+        const int qa = axis == 2 ? 1 : 2;
+        const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax;
+        const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax;
+        value = sample(textures_[static_cast<std::size_t>(axis * 2 + side)], fu, fv);
+      }
+      value *= gain;
       if (noisy) {
         value += static_cast<float>(noise_[noise_i]);
         noise_i = (noise_i + 1) & noise_mask;
@@ -237,9 +432,20 @@ AcquireStatus SyntheticCamera::acquire(FrameHandle& out, std::int64_t timeout_ns
   Frame& f = *h;
   f.seq = next_seq_;
   f.t_ns = t_ns;
-  f.T_w_c_gt = pose_at(static_cast<double>(t_ns) / kNsPerS);
-  f.has_ground_truth = true;
-  render(f.T_w_c_gt, f.gray, opts_.render_depth ? &f.depth : nullptr, next_seq_);
+  const double t_s = static_cast<double>(t_ns) / kNsPerS;
+  const ScenarioSample sample = sample_at(t_s);
+  f.T_w_c_gt = sample.T_w_c;
+  f.has_ground_truth = sample.visible;
+  if (sample.visible) {
+    const double gain =
+        1.0 + opts_.exposure_amplitude * std::sin(kTwoPi * t_s / opts_.exposure_period_s);
+    render(f.T_w_c_gt, f.gray, opts_.render_depth ? &f.depth : nullptr, next_seq_,
+           static_cast<float>(gain));
+  } else {
+    // Blacked out (lens covered): sensor noise only, no depth.
+    f.gray.setTo(0);
+    if (opts_.render_depth) f.depth.setTo(0.0F);
+  }
   ++next_seq_;
   f.t_ready_ns = platform::monotonic_now_ns();
   f.produce_ns = f.t_ready_ns - t_work;

@@ -77,30 +77,136 @@ TEST(SyntheticCamera, SameSeedSameImagesDifferentSeedDifferentImages) {
   EXPECT_GT(cv::norm(a, c, cv::NORM_L1), 1000.0);
 }
 
-// Depth is geometry: back-projecting a pixel with its depth must land on a wall of the room.
-TEST(SyntheticCamera, DepthBackProjectsOntoTheRoomWalls) {
-  SyntheticOptions o = small_options();
-  SyntheticCamera cam("room_orbit", o, false);
-  ASSERT_TRUE(cam.open(2).is_ok());
-  ASSERT_TRUE(cam.start().is_ok());
-  FrameHandle f;
-  ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
-  const CameraIntrinsics& K = cam.intrinsics();
-  int checked = 0;
-  for (int v = 0; v < o.height; v += 7) {
-    for (int u = 0; u < o.width; u += 7) {
-      const double z = f->depth.at<float>(v, u);
-      ASSERT_GT(z, 0.0);
-      const Eigen::Vector3d p_c((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
-      const Eigen::Vector3d p_w = f->T_w_c_gt * p_c;
-      const double dx = std::abs(std::abs(p_w.x()) - 0.5 * o.room_size_x);
-      const double dy = std::abs(std::abs(p_w.y()) - 0.5 * o.room_size_y);
-      const double dz = std::min(std::abs(p_w.z()), std::abs(p_w.z() - o.room_height));
-      EXPECT_LT(std::min({dx, dy, dz}), 1e-3) << "pixel " << u << "," << v;
-      ++checked;
+// Distance from a world point to the nearest scene surface (room walls or box faces).
+double distance_to_scene(const Eigen::Vector3d& p, const SyntheticOptions& o,
+                         const std::vector<SceneBox>& boxes) {
+  const double dx = std::abs(std::abs(p.x()) - 0.5 * o.room_size_x);
+  const double dy = std::abs(std::abs(p.y()) - 0.5 * o.room_size_y);
+  const double dz = std::min(std::abs(p.z()), std::abs(p.z() - o.room_height));
+  double best = std::min({dx, dy, dz});
+  for (const auto& b : boxes) {
+    const Eigen::Vector3d lo = b.lo.cast<double>();
+    const Eigen::Vector3d hi = b.hi.cast<double>();
+    const bool inside_xy = p.x() >= lo.x() - 1e-3 && p.x() <= hi.x() + 1e-3 &&
+                           p.y() >= lo.y() - 1e-3 && p.y() <= hi.y() + 1e-3 &&
+                           p.z() >= lo.z() - 1e-3 && p.z() <= hi.z() + 1e-3;
+    if (!inside_xy) continue;
+    for (int a = 0; a < 3; ++a) {
+      best = std::min({best, std::abs(p[a] - lo[a]), std::abs(p[a] - hi[a])});
     }
   }
-  EXPECT_GT(checked, 300);
+  return best;
+}
+
+// Depth is geometry: back-projecting a pixel with its depth must land on a scene surface.
+TEST(SyntheticCamera, DepthBackProjectsOntoTheScene) {
+  for (const char* scenario : {"room_orbit", "room_loop"}) {
+    SyntheticOptions o = small_options();
+    SyntheticCamera cam(scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    ASSERT_TRUE(cam.start().is_ok());
+    ASSERT_FALSE(cam.boxes().empty());
+    const CameraIntrinsics& K = cam.intrinsics();
+    int checked = 0;
+    for (int i = 0; i < 20; ++i) {
+      FrameHandle f;
+      ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+      if (i % 6 != 0) continue;
+      for (int v = 0; v < o.height; v += 7) {
+        for (int u = 0; u < o.width; u += 7) {
+          const double z = f->depth.at<float>(v, u);
+          ASSERT_GT(z, 0.0);
+          const Eigen::Vector3d p_c((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+          const Eigen::Vector3d p_w = f->T_w_c_gt * p_c;
+          EXPECT_LT(distance_to_scene(p_w, o, cam.boxes()), 1e-3)
+              << scenario << " frame " << i << " pixel " << u << "," << v;
+          ++checked;
+        }
+      }
+    }
+    EXPECT_GT(checked, 1000) << scenario;
+  }
+}
+
+TEST(SyntheticCamera, BoxesStandInsideTheRoomClearOfTheCamera) {
+  SyntheticOptions o = small_options();
+  o.num_frames = 600;
+  for (const char* scenario : {"room_orbit", "room_loop"}) {
+    SyntheticCamera cam(scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    EXPECT_EQ(cam.boxes().size(), static_cast<std::size_t>(o.num_boxes));
+    for (int i = 0; i < 600; i += 5) {
+      const Eigen::Vector3d c = cam.sample_at(i / 30.0).T_w_c.translation();
+      for (const auto& b : cam.boxes()) {
+        const bool inside = (c.array() > b.lo.cast<double>().array() - 0.3).all() &&
+                            (c.array() < b.hi.cast<double>().array() + 0.3).all();
+        EXPECT_FALSE(inside) << scenario << " camera within 0.3 m of a box at t=" << i / 30.0;
+      }
+    }
+  }
+}
+
+TEST(SyntheticCamera, LoopReturnsToItsStart) {
+  SyntheticCamera cam("room_loop", small_options(), false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  const SE3d a = cam.sample_at(0.0).T_w_c;
+  const SE3d b = cam.sample_at(20.0).T_w_c;
+  const SE3d mid = cam.sample_at(10.0).T_w_c;
+  EXPECT_LT((a.translation() - b.translation()).norm(), 1e-9);
+  EXPECT_LT(Eigen::Quaterniond(a.linear()).angularDistance(Eigen::Quaterniond(b.linear())), 1e-9);
+  EXPECT_GT((a.translation() - mid.translation()).norm(), 2.0) << "the loop must go somewhere";
+}
+
+TEST(SyntheticCamera, KidnapBlacksOutThenReappearsEarlier) {
+  SyntheticOptions o = small_options();
+  o.fps = 10.0;
+  o.num_frames = 120;
+  SyntheticCamera cam("room_kidnap", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  ASSERT_TRUE(cam.start().is_ok());
+  std::vector<SE3d> poses;
+  for (int i = 0; i < 120; ++i) {
+    FrameHandle f;
+    ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+    const double t = i / 10.0;
+    const bool black = t >= o.kidnap_start_s && t < o.kidnap_start_s + o.kidnap_black_s;
+    EXPECT_EQ(f->has_ground_truth, !black) << "t=" << t;
+    if (black) {
+      EXPECT_EQ(cv::countNonZero(f->gray), 0) << "t=" << t;
+    }
+    poses.push_back(f->T_w_c_gt);
+  }
+  // First frame after the blackout (t = 9 s) shows the place of t = 2 s.
+  EXPECT_LT((poses[90].translation() - poses[20].translation()).norm(), 1e-9);
+  EXPECT_GT((poses[90].translation() - poses[79].translation()).norm(), 0.5);
+}
+
+TEST(SyntheticCamera, FastRotationTurnsQuickly) {
+  SyntheticCamera cam("room_fast_rotation", small_options(), false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  double peak_deg_s = 0.0;
+  const double dt = 1.0 / 30.0;
+  for (double t = 0.0; t < 8.0; t += dt) {
+    const Eigen::Quaterniond a(cam.sample_at(t).T_w_c.linear());
+    const Eigen::Quaterniond b(cam.sample_at(t + dt).T_w_c.linear());
+    peak_deg_s = std::max(peak_deg_s, a.angularDistance(b) / dt * 180.0 / 3.14159265358979);
+  }
+  EXPECT_GT(peak_deg_s, 200.0);  // 1.5 * 360 / 2 s = 270 deg/s plus the orbit's own turn
+}
+
+TEST(SyntheticCamera, ExposureVariesBrightness) {
+  SyntheticOptions o = small_options();
+  o.exposure_amplitude = 0.5;
+  o.exposure_period_s = 2.0;
+  o.noise_sigma = 0.0;
+  SyntheticCamera cam("room_orbit", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  cv::Mat bright(o.height, o.width, CV_8UC1);
+  cv::Mat dark(o.height, o.width, CV_8UC1);
+  const SE3d T = cam.sample_at(0.0).T_w_c;
+  cam.render(T, bright, nullptr, 0, 1.5F);
+  cam.render(T, dark, nullptr, 0, 0.5F);
+  EXPECT_GT(cv::mean(bright)[0], 1.5 * cv::mean(dark)[0]);
 }
 
 TEST(SyntheticCamera, ImagesHaveTexture) {
