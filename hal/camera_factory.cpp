@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <array>
 
+#include "hal/replay/rec_loader.h"
+#include "hal/v4l2/v4l2_camera.h"
+
 namespace mer::hal {
 namespace {
 constexpr std::array<std::string_view, 7> kSchemes{"synthetic", "tum",  "euroc",    "kitti",
@@ -33,28 +36,24 @@ Result<InputUri> parse_input_uri(std::string_view uri) {
   return out;
 }
 
-CameraIntrinsics effective_intrinsics(const CameraIntrinsics& source,
-                                      const CalibrationOptions& calib) {
-  if (!calib.is_set()) return source;
-  CameraIntrinsics k = source;
-  k.fx = calib.fx;
-  k.fy = calib.fy > 0.0 ? calib.fy : calib.fx;
-  k.cx = calib.cx;
-  k.cy = calib.cy;
-  k.dist = {calib.k1, calib.k2, calib.p1, calib.p2};
-  k.focal_known = true;
-  return k;
-}
-
 Result<std::unique_ptr<CameraSource>> make_camera(const InputUri& uri, const CameraOptions& opts,
-                                                  bool paced) {
+                                                  bool paced, bool rgbd) {
   if (uri.scheme == "synthetic") {
     return std::unique_ptr<CameraSource>(
         std::make_unique<SyntheticCamera>(uri.path, opts.synthetic, paced));
   }
-  return Status(StatusCode::kUnavailable,
-                "--input '" + uri.scheme + ":" + uri.path + "': the '" + uri.scheme +
-                    "' reader is not available in this build (available: synthetic:)");
+  if (uri.scheme == "tum" || uri.scheme == "euroc" || uri.scheme == "kitti") {
+    return make_replay_camera(uri.scheme, uri.path, opts.replay, opts.calibration, rgbd, paced);
+  }
+  if (uri.scheme == "rec") {
+    auto loader = make_rec_loader(uri.path);
+    if (!loader.is_ok()) return loader.status();
+    return std::unique_ptr<CameraSource>(
+        std::make_unique<ReplayCamera>(std::move(loader).value(), opts.replay, paced));
+  }
+  if (uri.scheme == "v4l2") return make_v4l2_camera(uri.path, opts.v4l2);
+  if (uri.scheme == "libcamera") return make_libcamera_camera(uri.path, opts.libcamera);
+  return invalid_argument("--input '" + uri.scheme + ":" + uri.path + "': unknown scheme");
 }
 
 }  // namespace mer::hal

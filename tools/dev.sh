@@ -20,8 +20,12 @@ PACKAGES=(
   g++ cmake make ccache pkg-config
   libeigen3-dev
   libopencv-core-dev libopencv-imgproc-dev libopencv-features2d-dev libopencv-imgcodecs-dev
+  libcamera-dev
   libgtest-dev libbenchmark-dev
   clang-format clang-tidy
+  # real-driver tests (label 'hw'): a stock Debian kernel booted in qemu
+  qemu-system-x86 busybox-static cpio xz-utils kmod
+  libcamera-ipa gcc-12 libelf1 libssl3
 )
 
 log() { printf '\033[1m[dev.sh]\033[0m %s\n' "$*"; }

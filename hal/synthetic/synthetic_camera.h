@@ -49,8 +49,7 @@ struct SyntheticOptions {
     v.field("fov_x_deg", fov_x_deg, "horizontal field of view, degrees",
             options::Range<double>{10.0, 150.0});
     v.field("fps", fps, "frame rate, Hz", options::Range<double>{1.0, 1000.0});
-    v.field("num_frames", num_frames, "frames in the sequence",
-            options::Range<int>{1, 10000000});
+    v.field("num_frames", num_frames, "frames in the sequence", options::Range<int>{1, 10000000});
     v.field("noise_sigma", noise_sigma, "Gaussian image noise, grey levels",
             options::Range<double>{0.0, 50.0});
     v.field("exposure_amplitude", exposure_amplitude,
@@ -68,8 +67,7 @@ struct SyntheticOptions {
     v.field("room_height", room_height, "room height, m", options::Range<double>{2.0, 50.0});
     v.field("num_boxes", num_boxes, "textured boxes standing in the room",
             options::Range<int>{0, 16});
-    v.field("texture_size", texture_size, "texels per wall side",
-            options::Range<int>{16, 4096});
+    v.field("texture_size", texture_size, "texels per wall side", options::Range<int>{16, 4096});
     v.field("kidnap_start_s", kidnap_start_s, "room_kidnap: time the image goes black, s",
             options::Range<double>{0.0, 1e6});
     v.field("kidnap_black_s", kidnap_black_s, "room_kidnap: blackout duration, s",
@@ -148,7 +146,7 @@ class SyntheticCamera final : public CameraSource {
   std::vector<float> rays_;                            // per pixel (x, y) of the ray at z = 1
   std::array<std::vector<std::uint8_t>, 6> textures_;  // one per wall, shared by boxes
   std::vector<SceneBox> boxes_;
-  std::vector<std::int8_t> noise_;                     // precomputed noise table
+  std::vector<std::int8_t> noise_;  // precomputed noise table
   std::uint64_t next_seq_ = 0;
   std::int64_t start_wall_ns_ = 0;
   bool started_ = false;

@@ -89,7 +89,8 @@ int main(int argc, char** argv) {
       drain.stop();
       return fail(uri.status());
     }
-    auto cam = hal::make_camera(uri.value(), config.camera, !config.pipeline.lockstep);
+    auto cam = hal::make_camera(uri.value(), config.camera, !config.pipeline.lockstep,
+                                config.pipeline.mode == "rgbd");
     if (!cam.is_ok()) {
       drain.stop();
       return fail(cam.status());

@@ -1,0 +1,61 @@
+#pragma once
+/// @file libcamera_camera.h
+/// `libcamera:ID` — cameras through libcamera (Raspberry Pi CSI cameras, UVC, vimc, ...).
+/// Optional backend: built when libcamera-dev is found (Debian 12 ships 0.0.3). libcamera
+/// headers stay inside libcamera_camera.cpp.
+///
+/// Completed requests are handed from libcamera's callback thread straight into a lock-free
+/// ring of buffer indices; acquire() converts the mapped buffer to gray in a pool frame and
+/// re-queues the request. ID is a libcamera camera id, an index ("0"), or "auto" (first).
+
+#include <memory>
+#include <string>
+
+#include "core/options.h"
+#include "core/status.h"
+#include "hal/camera.h"
+
+namespace mer::hal {
+
+inline constexpr std::array<std::string_view, 7> kLibcameraFormats{
+    "auto", "R8", "YUYV", "NV12", "BGR888", "RGB888", "XRGB8888"};
+
+/// Options of the libcamera backend (config section `camera.libcamera`).
+struct LibcameraOptions {
+  int width = 640;                    ///< requested width, px (the pipeline may adjust it)
+  int height = 480;                   ///< requested height, px
+  double fps = 30.0;                  ///< requested frame rate (FrameDurationLimits), Hz
+  std::string pixel_format = "auto";  ///< auto picks the first supported, gray formats first
+  int buffers = 4;                    ///< frame buffers allocated by libcamera
+  int dequeue_timeout_ms = 1000;      ///< acquire() waits this long for a completed request
+
+  template <class V>
+  void visit(V& v) {
+    v.field("width", width, "requested width, px", options::Range<int>{16, 8192});
+    v.field("height", height, "requested height, px", options::Range<int>{16, 8192});
+    v.field("fps", fps, "requested frame rate, Hz", options::Range<double>{1.0, 1000.0});
+    v.field("pixel_format", pixel_format, "stream pixel format", options::OneOf{kLibcameraFormats});
+    v.field("buffers", buffers, "frame buffers allocated by libcamera", options::Range<int>{2, 32});
+    v.field("dequeue_timeout_ms", dequeue_timeout_ms, "wait for a completed request, ms",
+            options::Range<int>{1, 60000});
+  }
+};
+
+/// True when this build includes the libcamera backend.
+bool libcamera_backend_built();
+
+/// Creates (not opens) a libcamera source for camera `id`; kUnavailable when the backend
+/// was not built.
+Result<std::unique_ptr<CameraSource>> make_libcamera_camera(const std::string& id,
+                                                            const LibcameraOptions& opts);
+
+/// Pixel layouts the converter understands.
+enum class PackedFormat { kGrey8, kYuyv, kNv12, kBgr888, kRgb888, kXrgb8888 };
+
+/// Converts one image of `format` (first plane at `src`, `stride` bytes per row) to 8-bit
+/// gray in `dst` (same width/height). For YUYV/NV12 the luma is taken as is; for RGB the
+/// ITU-R BT.601 luma is computed with integer weights. No allocation.
+void convert_to_gray(PackedFormat format, const std::uint8_t* src, std::size_t stride,
+                     cv::Mat& dst);
+
+}  // namespace mer::hal
