@@ -6,10 +6,12 @@
 #include <cerrno>
 #include <cstring>
 #include <map>
+#include <span>
 #include <vector>
 
 #include <libcamera/libcamera.h>
 
+#include "hal/pixel_convert.h"
 #include "platform/clock.h"
 #include "platform/log_ring.h"
 #include "platform/notifier.h"
@@ -28,17 +30,17 @@ constexpr double kUsPerS = 1e6;
 struct FormatChoice {
   const char* name;
   libcamera::PixelFormat format;
-  PackedFormat packed;
+  PixelFormat packed;
 };
 
 const std::vector<FormatChoice>& format_table() {
   static const std::vector<FormatChoice> kTable{
-      {"R8", libcamera::formats::R8, PackedFormat::kGrey8},
-      {"YUYV", libcamera::formats::YUYV, PackedFormat::kYuyv},
-      {"NV12", libcamera::formats::NV12, PackedFormat::kNv12},
-      {"BGR888", libcamera::formats::BGR888, PackedFormat::kBgr888},
-      {"RGB888", libcamera::formats::RGB888, PackedFormat::kRgb888},
-      {"XRGB8888", libcamera::formats::XRGB8888, PackedFormat::kXrgb8888},
+      {"R8", libcamera::formats::R8, PixelFormat::kGrey},
+      {"YUYV", libcamera::formats::YUYV, PixelFormat::kYuyv},
+      {"NV12", libcamera::formats::NV12, PixelFormat::kNv12},
+      {"BGR888", libcamera::formats::BGR888, PixelFormat::kBgr888},
+      {"RGB888", libcamera::formats::RGB888, PixelFormat::kRgb888},
+      {"XRGB8888", libcamera::formats::XRGB8888, PixelFormat::kXrgb8888},
   };
   return kTable;
 }
@@ -148,7 +150,9 @@ class LibcameraCamera final : public CameraSource {
         }
         mappings_[fd] = {static_cast<std::uint8_t*>(mem), length};
       }
-      planes_.push_back(mappings_[fd].first + plane.offset);
+      const auto& [base, mapped] = mappings_[fd];
+      planes_.emplace_back(base + plane.offset,
+                           mapped > plane.offset ? mapped - plane.offset : std::size_t{0});
       std::unique_ptr<libcamera::Request> req = camera_->createRequest(i);
       if (!req || req->addBuffer(stream_, fb) != 0) {
         return input_error("libcamera:" + id_ + ": cannot create request " + std::to_string(i));
@@ -232,12 +236,17 @@ class LibcameraCamera final : public CameraSource {
         result = AcquireStatus::kPoolEmpty;
       } else {
         const std::int64_t t0 = platform::monotonic_now_ns();
-        convert_to_gray(packed_, planes_[index], stride_, h->gray);
-        h->seq = md.sequence;
-        h->t_ns = static_cast<std::int64_t>(md.timestamp);
-        h->t_ready_ns = platform::monotonic_now_ns();
-        h->produce_ns = h->t_ready_ns - t0;
-        out = std::move(h);
+        const ImageLayout layout{h->gray.cols, h->gray.rows, static_cast<int>(stride_)};
+        if (!convert_to_gray(packed_, planes_[index], layout, h->gray)) {
+          ++frame_errors_;  // buffer shorter than the configured layout: drop and count
+          result = AcquireStatus::kTimeout;
+        } else {
+          h->seq = md.sequence;
+          h->t_ns = static_cast<std::int64_t>(md.timestamp);
+          h->t_ready_ns = platform::monotonic_now_ns();
+          h->produce_ns = h->t_ready_ns - t0;
+          out = std::move(h);
+        }
       }
     }
     // Hand the buffer back through the requeue thread: Request::reuse() and
@@ -324,8 +333,8 @@ class LibcameraCamera final : public CameraSource {
   libcamera::Stream* stream_ = nullptr;
   std::vector<std::unique_ptr<libcamera::Request>> requests_;
   std::map<int, std::pair<std::uint8_t*, std::size_t>> mappings_;
-  std::vector<const std::uint8_t*> planes_;
-  PackedFormat packed_ = PackedFormat::kGrey8;
+  std::vector<std::span<const std::uint8_t>> planes_;  // first plane of each buffer
+  PixelFormat packed_ = PixelFormat::kGrey;
   std::size_t stride_ = 0;
   bool acquired_ = false;
   bool running_ = false;

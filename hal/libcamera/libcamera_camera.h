@@ -49,13 +49,4 @@ bool libcamera_backend_built();
 Result<std::unique_ptr<CameraSource>> make_libcamera_camera(const std::string& id,
                                                             const LibcameraOptions& opts);
 
-/// Pixel layouts the converter understands.
-enum class PackedFormat { kGrey8, kYuyv, kNv12, kBgr888, kRgb888, kXrgb8888 };
-
-/// Converts one image of `format` (first plane at `src`, `stride` bytes per row) to 8-bit
-/// gray in `dst` (same width/height). For YUYV/NV12 the luma is taken as is; for RGB the
-/// ITU-R BT.601 luma is computed with integer weights. No allocation.
-void convert_to_gray(PackedFormat format, const std::uint8_t* src, std::size_t stride,
-                     cv::Mat& dst);
-
 }  // namespace mer::hal

@@ -47,6 +47,10 @@ std::uint32_t fourcc_of(PixelFormat f) {
       return V4L2_PIX_FMT_YUYV;
     case PixelFormat::kNv12:
       return V4L2_PIX_FMT_NV12;
+    case PixelFormat::kRgb888:  // packed RGB: libcamera only (not offered in v4l2 options)
+    case PixelFormat::kBgr888:
+    case PixelFormat::kXrgb8888:
+      break;
   }
   return 0;
 }

@@ -34,7 +34,7 @@
 
 #include "core/status.h"
 #include "hal/camera.h"
-#include "hal/v4l2/pixel_convert.h"
+#include "hal/pixel_convert.h"
 #include "hal/v4l2/v4l2_options.h"
 
 namespace mer::hal {

@@ -1,4 +1,4 @@
-#include "hal/v4l2/pixel_convert.h"
+#include "hal/pixel_convert.h"
 
 #include <cstdint>
 #include <vector>
@@ -143,13 +143,39 @@ TEST(PixelConvert, WritesIntoTheGivenBuffer) {
 }
 
 TEST(PixelConvert, FormatNamesRoundTrip) {
-  for (PixelFormat f : {PixelFormat::kGrey, PixelFormat::kYuyv, PixelFormat::kNv12}) {
+  for (PixelFormat f : {PixelFormat::kGrey, PixelFormat::kYuyv, PixelFormat::kNv12,
+                        PixelFormat::kRgb888, PixelFormat::kBgr888, PixelFormat::kXrgb8888}) {
     const auto parsed = parse_pixel_format(pixel_format_name(f));
     ASSERT_TRUE(parsed.has_value());
     EXPECT_EQ(*parsed, f);
   }
   EXPECT_FALSE(parse_pixel_format("MJPG").has_value());
   EXPECT_FALSE(parse_pixel_format("grey").has_value());
+}
+
+// Packed RGB (libcamera): BT.601 luma, each format in its own memory order, with padding.
+TEST(PixelConvert, RgbFormatsUseBt601LumaInTheirByteOrder) {
+  struct Case {
+    PixelFormat f;
+    int bpp;
+    std::vector<std::uint8_t> red;  // one pure-red pixel in memory order
+  };
+  for (const Case& c :
+       {Case{PixelFormat::kRgb888, 3, {0, 0, 255}}, Case{PixelFormat::kBgr888, 3, {255, 0, 0}},
+        Case{PixelFormat::kXrgb8888, 4, {0, 0, 255, 0}}}) {
+    const int stride = kW * c.bpp + kPad;
+    std::vector<std::uint8_t> buf(static_cast<std::size_t>(stride * kH), 0);
+    for (int y = 0; y < kH; ++y) {
+      for (std::size_t b = 0; b < c.red.size(); ++b) buf[y * stride + b] = c.red[b];
+    }
+    cv::Mat gray(kH, kW, CV_8UC1, cv::Scalar(1));
+    ASSERT_TRUE(convert_to_gray(c.f, buf, {kW, kH, stride}, gray)) << pixel_format_name(c.f);
+    EXPECT_EQ(gray.at<std::uint8_t>(0, 0), (77 * 255) >> 8) << pixel_format_name(c.f);
+    EXPECT_EQ(gray.at<std::uint8_t>(1, 1), 0) << pixel_format_name(c.f);
+    // One byte short of the last row: rejected.
+    buf.resize(static_cast<std::size_t>(stride * (kH - 1) + kW * c.bpp - 1));
+    EXPECT_FALSE(convert_to_gray(c.f, buf, {kW, kH, stride}, gray)) << pixel_format_name(c.f);
+  }
 }
 
 }  // namespace

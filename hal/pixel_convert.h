@@ -1,16 +1,18 @@
 #pragma once
 /// @file pixel_convert.h
-/// Conversion of the V4L2 capture formats the backend accepts (GREY, YUYV, NV12) to the
-/// 8-bit gray image of a Frame. Pure functions over byte spans (no V4L2 header, no
-/// allocation), so they are unit-tested on synthetic buffers.
+/// Conversion of camera pixel formats (V4L2 and libcamera backends) to the 8-bit gray
+/// image of a Frame. Pure functions over byte spans (no device header, no allocation), so
+/// they are unit-tested on synthetic buffers.
 ///
-/// Gray is the luma channel Y of each format, copied as is (the SLAM front end works on
-/// luma; no colour matrix is involved):
+/// For YUV formats gray is the luma channel Y, copied as is:
 ///   GREY  row r = bytes [r * bpl, r * bpl + w)
 ///   YUYV  row r, pixel x = byte r * bpl + 2x        (Y0 U0 Y1 V0 Y2 U2 ...)
 ///   NV12  row r = bytes [r * bpl, r * bpl + w) of the Y plane (the CbCr plane follows
 ///         and is not read)
-/// where bpl (bytes per line) may exceed the minimum (row padding).
+/// For packed RGB formats gray is the ITU-R BT.601 luma (77 R + 150 G + 29 B) / 256.
+/// They are named by DRM fourcc as libcamera does (little-endian words): RGB888 is stored
+/// B, G, R in memory, BGR888 is R, G, B, XRGB8888 is B, G, R, X.
+/// bpl (bytes per line) may exceed the minimum (row padding).
 
 #include <cstddef>
 #include <cstdint>
@@ -22,14 +24,17 @@
 
 namespace mer::hal {
 
-/// Capture pixel formats the V4L2 backend converts to gray.
+/// Capture pixel formats the camera backends convert to gray.
 enum class PixelFormat {
-  kGrey,  ///< 8-bit luma only (V4L2_PIX_FMT_GREY)
-  kYuyv,  ///< packed 4:2:2, Y0 U Y1 V (V4L2_PIX_FMT_YUYV)
-  kNv12,  ///< planar 4:2:0, Y plane then interleaved CbCr plane (V4L2_PIX_FMT_NV12)
+  kGrey,      ///< 8-bit luma only (V4L2 GREY, libcamera R8)
+  kYuyv,      ///< packed 4:2:2, Y0 U Y1 V (V4L2_PIX_FMT_YUYV)
+  kNv12,      ///< planar 4:2:0, Y plane then interleaved CbCr plane (V4L2_PIX_FMT_NV12)
+  kRgb888,    ///< packed 24-bit, memory order B G R (DRM RGB888)
+  kBgr888,    ///< packed 24-bit, memory order R G B (DRM BGR888)
+  kXrgb8888,  ///< packed 32-bit, memory order B G R X (DRM XRGB8888)
 };
 
-/// The format's FourCC name: "GREY", "YUYV" or "NV12".
+/// The format's name: "GREY", "YUYV", "NV12", "RGB888", "BGR888" or "XRGB8888".
 std::string_view pixel_format_name(PixelFormat format) noexcept;
 
 /// Parses a FourCC name (exact, as in the options); nullopt when unknown.
