@@ -66,6 +66,15 @@ enum class AcquireStatus {
   kError,        ///< device or file error; see last_error()
 };
 
+/// What a source dropped or survived, for summary.json (all zero when nothing happened).
+struct SourceCounters {
+  std::uint64_t skipped = 0;       ///< unusable recorded frames skipped (replay)
+  std::uint64_t error_frames = 0;  ///< frames the device flagged as corrupt (dropped)
+  std::uint64_t seq_gaps = 0;      ///< frames the device/driver skipped (sequence jumps)
+  std::uint64_t restarts = 0;      ///< successful recoveries after a device error
+  std::string damage;              ///< where a recording is damaged (empty: intact)
+};
+
 /// The interface every camera implements. Not thread-safe: one capture thread calls
 /// start/acquire/stop; handles may be released on any thread.
 class CameraSource {
@@ -92,6 +101,8 @@ class CameraSource {
   virtual const Status& last_error() const = 0;
   /// The frame pool; the pipeline re-wraps raw slot indices passed through rings.
   virtual FramePool& pool() = 0;
+  /// Drops and recoveries so far. Call from the capture thread or after stop().
+  virtual SourceCounters counters() const { return {}; }
 };
 
 }  // namespace mer::hal

@@ -2,12 +2,22 @@
 
 #include <atomic>
 #include <cstdint>
+#include <limits>
 
 namespace mer::platform {
 
 /// Current CLOCK_MONOTONIC time in nanoseconds (never jumps with wall-clock changes).
 /// vDSO call, no syscall, no allocation: safe on real-time threads.
 std::int64_t monotonic_now_ns() noexcept;
+
+/// `t_ns + dt_ns` clamped to the int64 range (deadlines from caller-supplied timeouts).
+constexpr std::int64_t saturating_add_ns(std::int64_t t_ns, std::int64_t dt_ns) noexcept {
+  constexpr std::int64_t kMax = std::numeric_limits<std::int64_t>::max();
+  constexpr std::int64_t kMin = std::numeric_limits<std::int64_t>::min();
+  if (dt_ns > 0 && t_ns > kMax - dt_ns) return kMax;
+  if (dt_ns < 0 && t_ns < kMin - dt_ns) return kMin;
+  return t_ns + dt_ns;
+}
 
 /// Time source injected into stages, so that live runs use the monotonic clock and
 /// deterministic replay uses a clock driven by the frame timestamps.

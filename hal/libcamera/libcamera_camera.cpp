@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <charconv>
 #include <cstring>
 #include <map>
 #include <span>
@@ -52,6 +53,7 @@ class LibcameraCamera final : public CameraSource {
 
   Status open(std::size_t pool_size) override {
     if (Status s = options::validate(opts_); !s.is_ok()) return s;
+    teardown();  // a second open() starts from scratch (one CameraManager per process)
     manager_ = std::make_unique<libcamera::CameraManager>();
     if (int r = manager_->start(); r != 0) {
       return input_error("libcamera: CameraManager::start failed: " +
@@ -64,8 +66,11 @@ class LibcameraCamera final : public CameraSource {
     if (id_ == "auto" && !cams.empty()) {
       camera_ = cams.front();
     } else if (!id_.empty() && id_.find_first_not_of("0123456789") == std::string::npos) {
-      const std::size_t idx = std::stoul(id_);
-      if (idx < cams.size()) camera_ = cams[idx];
+      std::size_t idx = 0;
+      const auto [end, ec] = std::from_chars(id_.data(), id_.data() + id_.size(), idx);
+      if (ec == std::errc() && end == id_.data() + id_.size() && idx < cams.size()) {
+        camera_ = cams[idx];
+      }
     } else {
       camera_ = manager_->get(id_);
     }
@@ -209,7 +214,8 @@ class LibcameraCamera final : public CameraSource {
 
   AcquireStatus acquire(FrameHandle& out, std::int64_t timeout_ns) override {
     if (!running_) return AcquireStatus::kEndOfStream;
-    const std::int64_t deadline = platform::monotonic_now_ns() + timeout_ns;
+    const std::int64_t deadline =
+        platform::saturating_add_ns(platform::monotonic_now_ns(), timeout_ns);
     std::uint32_t index = 0;
     while (true) {
       const std::uint32_t epoch = completed_wake_.epoch();
@@ -278,6 +284,7 @@ class LibcameraCamera final : public CameraSource {
   }
   const Status& last_error() const override { return last_error_; }
   FramePool& pool() override { return *pool_; }
+  SourceCounters counters() const override { return SourceCounters{0, frame_errors_, 0, 0, {}}; }
 
  private:
   // Runs on libcamera's thread: pass the buffer index on, nothing else.

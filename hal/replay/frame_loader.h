@@ -48,6 +48,8 @@ class FrameLoader {
   virtual LoadStatus load(std::size_t index, Frame& out, Status& status) = 0;
   /// Frame rate the sequence was recorded at (from timestamps), 0 when unknown.
   virtual double nominal_fps() const = 0;
+  /// Where the source is damaged (e.g. a truncated recording), empty when intact.
+  virtual std::string damage_report() const { return {}; }
   /// Human-readable description ("kitti:/data/00 (1241x376, 4541 frames)").
   virtual std::string describe() const = 0;
   /// The sequence's whole ground-truth trajectory (camera-to-world, at the ground truth's

@@ -19,6 +19,9 @@ Status RecLoader::open() {
       ground_truth_.poses.push_back(p);
     }
   }
+  // Built once here: describe() is called from other threads while load() runs on the
+  // prefetch thread and may shorten the frame count on damage.
+  description_ = build_description();
   return Status::ok();
 }
 
@@ -44,6 +47,10 @@ LoadStatus RecLoader::load(std::size_t index, Frame& out, Status& status) {
 }
 
 std::string RecLoader::describe() const {
+  return description_.empty() ? "rec:" + path_ : description_;
+}
+
+std::string RecLoader::build_description() const {
   const RecordingHeader& h = reader_.header();
   std::string s = "rec:" + path_ + " (" + std::to_string(h.intrinsics.width) + "x" +
                   std::to_string(h.intrinsics.height) + ", " +

@@ -44,11 +44,18 @@ class RecLoader final : public FrameLoader {
 
   /// The first damage found so far (by open()'s scan or by load()), if any.
   const std::optional<RecordingDamage>& damage() const { return reader_.damage(); }
+  /// The damage message (FrameLoader interface). Call after load() reported the end.
+  std::string damage_report() const override {
+    return reader_.damage() ? reader_.damage()->message : std::string();
+  }
   /// The file header (valid after open()).
   const RecordingHeader& header() const { return reader_.header(); }
 
  private:
+  std::string build_description() const;
+
   std::string path_;
+  std::string description_;  // set by open()
   RecordingReader reader_;
   Trajectory ground_truth_;
   bool damage_logged_ = false;

@@ -263,4 +263,12 @@ Result<std::unique_ptr<CameraSource>> make_replay_camera(const std::string& sche
       std::make_unique<ReplayCamera>(std::move(loader), opts, paced));
 }
 
+SourceCounters ReplayCamera::counters() const {
+  SourceCounters c;
+  c.skipped = skipped();
+  // The loader's damage is written on the prefetch thread: read it once that has stopped.
+  if (!thread_.joinable()) c.damage = loader_->damage_report();
+  return c;
+}
+
 }  // namespace mer::hal

@@ -94,6 +94,8 @@ class ReplayCamera final : public CameraSource {
 
   /// Frames skipped so far (unusable frames, counted on the prefetch thread).
   std::uint64_t skipped() const noexcept { return skipped_.load(std::memory_order_relaxed); }
+  /// Skipped frames and the loader's damage report.
+  SourceCounters counters() const override;
   /// The loader (e.g. for its ground_truth()).
   const FrameLoader& loader() const { return *loader_; }
 

@@ -442,7 +442,7 @@ AcquireStatus SyntheticCamera::acquire(FrameHandle& out, std::int64_t timeout_ns
     render(f.T_w_c_gt, f.gray, opts_.render_depth ? &f.depth : nullptr, next_seq_,
            static_cast<float>(gain));
   } else {
-    // Blacked out (lens covered): sensor noise only, no depth.
+    // Blacked out (lens covered): an all-black image and no depth.
     f.gray.setTo(0);
     if (opts_.render_depth) f.depth.setTo(0.0F);
   }

@@ -544,8 +544,8 @@ AcquireStatus V4l2Camera::acquire(FrameHandle& out, std::int64_t timeout_ns) {
   FrameHandle h = pool_->acquire();
   if (!h) return AcquireStatus::kPoolEmpty;
 
-  const std::int64_t deadline =
-      platform::monotonic_now_ns() + std::max<std::int64_t>(timeout_ns, 0);
+  const std::int64_t deadline = platform::saturating_add_ns(platform::monotonic_now_ns(),
+                                                            std::max<std::int64_t>(timeout_ns, 0));
   for (;;) {
     std::int64_t now = platform::monotonic_now_ns();
     const std::int64_t remaining = std::max<std::int64_t>(deadline - now, 0);

@@ -55,6 +55,11 @@ class V4l2Camera final : public CameraSource {
  public:
   /// `device` is the device node path ("/dev/video0"); nothing is opened yet.
   V4l2Camera(std::string device, const V4l2Options& opts);
+  /// Error frames, sequence gaps and restarts from stats().
+  SourceCounters counters() const override {
+    const V4l2Stats& st = stats();
+    return SourceCounters{0, st.error_frames + st.short_frames, st.sequence_gaps, st.restarts, {}};
+  }
   /// Stops streaming, unmaps the buffers and closes the device.
   ~V4l2Camera() override;
   V4l2Camera(const V4l2Camera&) = delete;

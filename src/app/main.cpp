@@ -79,6 +79,12 @@ int main(int argc, char** argv) {
       platform::find_board(config.board.profile).value_or(platform::kBoardGenericX86);
   (void)drain.start(board.log);
 
+  if (config.pipeline.focal == "auto") {
+    MER_LOG_WARN(
+        "--focal auto: focal estimation arrives with the localization front end; this build "
+        "uses the source's calibration");
+  }
+
   app::RunInfo info;
   info.input = args.input;
   info.sensor_mode = config.pipeline.mode;

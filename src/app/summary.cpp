@@ -96,6 +96,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
   j << "  \"output_overflows\": " << st.output_overflows << ",\n";
   j << "  \"acquire_timeouts\": " << st.acquire_timeouts << ",\n";
+  j << "  \"source_counters\": {\"skipped\": " << st.source.skipped
+    << ", \"error_frames\": " << st.source.error_frames << ", \"seq_gaps\": " << st.source.seq_gaps
+    << ", \"restarts\": " << st.source.restarts << ", \"damage\": " << json_string(st.source.damage)
+    << "},\n";
   j << "  \"threads\": [";
   for (std::size_t i = 0; i < st.threads.size(); ++i) {
     const auto& t = st.threads[i];
@@ -139,6 +143,12 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << " " << a.thread << " " << std::setprecision(2) << a.per_frame();
   }
   os << "\n";
+  const hal::SourceCounters& sc = st.source;
+  if (sc.skipped || sc.error_frames || sc.seq_gaps || sc.restarts) {
+    os << "  source: skipped " << sc.skipped << ", error frames " << sc.error_frames
+       << ", sequence gaps " << sc.seq_gaps << ", restarts " << sc.restarts << "\n";
+  }
+  if (!sc.damage.empty()) os << "  input damage: " << sc.damage << "\n";
   if (st.pool_exhausted || st.output_overflows) {
     os << "  pool exhausted " << st.pool_exhausted << ", output overflows " << st.output_overflows
        << "\n";

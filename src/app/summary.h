@@ -6,7 +6,8 @@
 /// Keys: frames_in, frames_processed, frames_dropped, frames_lost, keyframes, map_points,
 /// wall_time_s, latency_ms {stage: {p50, p90, p99, max, mean, count, budget}},
 /// budget_overruns {stage: n}, allocs_per_frame {thread: n}, plus run details
-/// (input, mode, pose_source, end_reason, pool_exhausted, output_overflows, threads, ...).
+/// (input, mode, pose_source, end_reason, pool_exhausted, output_overflows,
+/// source_counters {skipped, error_frames, seq_gaps, restarts, damage}, threads, ...).
 
 #include <ostream>
 #include <string>

@@ -12,16 +12,28 @@ namespace {
 constexpr std::size_t kFileBuffer = 1 << 16;  // stdio buffer per output file
 constexpr std::size_t kLineBuffer = 512;      // longest line we format
 constexpr double kNsToMs = 1e-6;
-constexpr double kNsToS = 1e-9;
+}  // namespace
+
+namespace {
+// Seconds with 9 decimals from integer nanoseconds, exact at any epoch (a double holds only
+// ~0.2 us at 1.4e9 s). Writes into `buf`; returns the length.
+int format_seconds(char* buf, std::size_t size, std::int64_t t_ns) {
+  const bool negative = t_ns < 0;
+  const auto mag =
+      negative ? -static_cast<unsigned long long>(t_ns) : static_cast<unsigned long long>(t_ns);
+  return std::snprintf(buf, size, "%s%llu.%09llu", negative ? "-" : "", mag / 1'000'000'000ULL,
+                       mag % 1'000'000'000ULL);
+}
 }  // namespace
 
 int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c) {
   const Eigen::Quaterniond q(T_w_c.linear());
   const Eigen::Vector3d& t = T_w_c.translation();
-  // Fixed formatting: deterministic, round-trips to ~1e-9.
-  return std::snprintf(buf, size, "%.9f %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n",
-                       static_cast<double>(t_ns) * kNsToS, t.x(), t.y(), t.z(), q.x(), q.y(), q.z(),
-                       q.w());
+  char stamp[32];
+  format_seconds(stamp, sizeof stamp, t_ns);
+  // Fixed formatting: deterministic; positions and quaternions to 1e-9.
+  return std::snprintf(buf, size, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", stamp, t.x(), t.y(),
+                       t.z(), q.x(), q.y(), q.z(), q.w());
 }
 
 OutputStage::~OutputStage() {
@@ -66,10 +78,10 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
   }
-  const double t_s = static_cast<double>(r.t_ns) * kNsToS;
-  std::fprintf(frames_csv_.f, "%llu,%.9f,%s,%d,%d,%016llx\n",
-               static_cast<unsigned long long>(r.seq), t_s, frontend::to_string(r.state),
-               r.is_keyframe ? 1 : 0, r.num_features,
+  char t_s[32];
+  format_seconds(t_s, sizeof t_s, r.t_ns);
+  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx\n", static_cast<unsigned long long>(r.seq),
+               t_s, frontend::to_string(r.state), r.is_keyframe ? 1 : 0, r.num_features,
                static_cast<unsigned long long>(r.feature_hash));
   if (frames_ % static_cast<std::uint64_t>(opts_.flush_every) == 0) flush_all();
   const std::int64_t out_ns = platform::monotonic_now_ns() - t0;
@@ -77,7 +89,7 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   auto ms = [&r](S s) {
     return static_cast<double>(r.stage_ns[static_cast<std::size_t>(s)]) * kNsToMs;
   };
-  std::fprintf(latency_csv_.f, "%llu,%.9f,%.4f,%.4f,%.4f,%.4f,%.4f\n",
+  std::fprintf(latency_csv_.f, "%llu,%s,%.4f,%.4f,%.4f,%.4f,%.4f\n",
                static_cast<unsigned long long>(r.seq), t_s, ms(S::kCapture), ms(S::kQueue),
                ms(S::kTracking), static_cast<double>(end_to_end_ns) * kNsToMs,
                static_cast<double>(out_ns) * kNsToMs);

@@ -130,6 +130,19 @@ platform::BoardThreads Pipeline::resolve_threads() const {
   return t;
 }
 
+bool Pipeline::source_timed_out(std::int64_t last_frame_ns) const {
+  return platform::monotonic_now_ns() - last_frame_ns >=
+         static_cast<std::int64_t>(config_.pipeline.source_timeout_ms) * 1'000'000;
+}
+
+std::string Pipeline::source_timeout_message() const {
+  std::string m = camera_.describe() + ": no frame for " +
+                  std::to_string(config_.pipeline.source_timeout_ms) +
+                  " ms (pipeline.source_timeout_ms)";
+  if (!camera_.last_error().is_ok()) m += "; last source error: " + camera_.last_error().message();
+  return m;
+}
+
 bool Pipeline::reached_max_frames() const {
   return config_.pipeline.max_frames > 0 &&
          stats_.frames_in >= static_cast<std::uint64_t>(config_.pipeline.max_frames);
@@ -143,6 +156,7 @@ Status Pipeline::run() {
   stats_.mode = config_.pipeline.lockstep ? "lockstep" : "threaded";
   s = config_.pipeline.lockstep ? run_lockstep() : run_threaded();
   camera_.stop();
+  stats_.source = camera_.counters();
   Status c = output_.close();
   finish_stats(t0);
   if (!s.is_ok()) return s;
@@ -164,7 +178,7 @@ Status Pipeline::run_lockstep() {
   const auto timeout_ns =
       static_cast<std::int64_t>(config_.pipeline.acquire_timeout_ms) * 1'000'000;
   const auto warmup = static_cast<std::uint64_t>(config_.telemetry.warmup_frames);
-  int timeouts = 0;
+  std::int64_t last_frame_ns = platform::monotonic_now_ns();
   while (true) {
     if (stop_.load(std::memory_order_relaxed)) {
       stats_.end_reason = "signal";
@@ -185,10 +199,9 @@ Status Pipeline::run_lockstep() {
     }
     if (st == hal::AcquireStatus::kTimeout) {
       ++stats_.acquire_timeouts;
-      if (++timeouts >= config_.pipeline.max_acquire_timeouts) {
+      if (source_timed_out(last_frame_ns)) {
         stats_.end_reason = "source_error";
-        return input_error(camera_.describe() + ": no frame after " + std::to_string(timeouts) +
-                           " timeouts");
+        return input_error(source_timeout_message());
       }
       continue;
     }
@@ -197,7 +210,7 @@ Status Pipeline::run_lockstep() {
       const Status& e = camera_.last_error();
       return input_error(e.is_ok() ? camera_.describe() + ": acquire failed" : e.message());
     }
-    timeouts = 0;
+    last_frame_ns = platform::monotonic_now_ns();
     ++stats_.frames_in;
     clock.set_ns(frame->t_ns);
     const bool steady = stats_.frames_in > warmup;
@@ -256,7 +269,7 @@ Status Pipeline::run_threaded() {
   Status capture_status;
 
   auto capture_body = [&] {
-    int timeouts = 0;
+    std::int64_t last_frame_ns = platform::monotonic_now_ns();
     while (true) {
       if (stop_.load(std::memory_order_relaxed)) {
         stats_.end_reason = "signal";
@@ -275,10 +288,9 @@ Status Pipeline::run_threaded() {
       }
       if (st == hal::AcquireStatus::kTimeout) {
         ++stats_.acquire_timeouts;
-        if (++timeouts >= config_.pipeline.max_acquire_timeouts) {
+        if (source_timed_out(last_frame_ns)) {
           stats_.end_reason = "source_error";
-          capture_status = input_error(camera_.describe() + ": no frame after " +
-                                       std::to_string(timeouts) + " timeouts");
+          capture_status = input_error(source_timeout_message());
           break;
         }
         continue;
@@ -295,7 +307,7 @@ Status Pipeline::run_threaded() {
             input_error(e.is_ok() ? camera_.describe() + ": acquire failed" : e.message());
         break;
       }
-      timeouts = 0;
+      last_frame_ns = platform::monotonic_now_ns();
       ++stats_.frames_in;
       lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
       // Drop-oldest: a full ring hands back the oldest frame; its buffer returns to the pool.

@@ -86,9 +86,10 @@ struct PipelineStats {
   std::uint64_t output_overflows = 0;  ///< results lost because the output ring was full
   std::uint64_t acquire_timeouts = 0;
   double wall_time_s = 0.0;
-  std::string mode;         ///< "lockstep" or "threaded"
-  std::string pose_source;  ///< where poses come from (placeholder tracking)
-  std::string end_reason;   ///< end_of_stream, max_frames, signal, source_error
+  std::string mode;            ///< "lockstep" or "threaded"
+  std::string pose_source;     ///< where poses come from (placeholder tracking)
+  std::string end_reason;      ///< end_of_stream, max_frames, signal, source_error
+  hal::SourceCounters source;  ///< what the source dropped or survived
   std::vector<StageLatency> latency;
   std::vector<ThreadAllocs> allocs;
   std::vector<ThreadPlacement> threads;
@@ -117,6 +118,8 @@ class Pipeline {
   void finish_stats(std::int64_t t_start_ns);
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;
+  bool source_timed_out(std::int64_t last_frame_ns) const;
+  std::string source_timeout_message() const;
 
   PipelineConfig config_;
   hal::CameraSource& camera_;

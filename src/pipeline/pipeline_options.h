@@ -22,7 +22,7 @@ struct PipelineOptions {
   bool lockstep = false;          ///< run stages sequentially and deterministically
   int max_frames = 0;             ///< stop after this many frames from the source (0: all)
   int acquire_timeout_ms = 1000;  ///< wait for a frame this long before retrying
-  int max_acquire_timeouts = 5;   ///< consecutive timeouts before the source counts as dead
+  int source_timeout_ms = 10000;  ///< no frame for this long ends the run (source_error)
   std::string focal = "fixed";    ///< fixed: use calibration; auto: estimate the focal length
 
   template <class V>
@@ -34,9 +34,9 @@ struct PipelineOptions {
             options::Range<int>{0, 1 << 30});
     v.field("acquire_timeout_ms", acquire_timeout_ms, "wait for a frame this long, ms",
             options::Range<int>{1, 60000});
-    v.field("max_acquire_timeouts", max_acquire_timeouts,
-            "consecutive acquire timeouts before giving up on the source",
-            options::Range<int>{1, 1000000});
+    v.field("source_timeout_ms", source_timeout_ms,
+            "no frame for this long ends the run as a source error (covers device recovery), ms",
+            options::Range<int>{1, 3600000});
     v.field("focal", focal, "focal length: fixed (calibrated) or auto (estimated)",
             options::OneOf{kFocalModes});
   }

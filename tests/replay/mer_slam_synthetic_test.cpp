@@ -98,7 +98,13 @@ TEST(MerSlamSynthetic, SigintStopsCleanlyAndKeepsOutputs) {
             static_cast<char*>(nullptr));
     _exit(127);
   }
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  // Interrupt once output is flowing (frames.csv is flushed every 30 frames); poll rather
+  // than sleep a fixed time, so a loaded machine cannot make the test fail.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (count_lines((d / "frames.csv").string()) < 31 &&
+         std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
   ASSERT_EQ(::kill(pid, SIGINT), 0);
   int status = 0;
   ASSERT_EQ(::waitpid(pid, &status, 0), pid);

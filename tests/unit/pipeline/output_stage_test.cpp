@@ -63,3 +63,16 @@ TEST(OutputStage, UnwritableDirectoryIsAnError) {
 
 }  // namespace
 }  // namespace mer::pipeline
+
+namespace mer::pipeline {
+namespace {
+// Epoch timestamps (TUM/EuRoC, ~1.4e9 s) keep every nanosecond digit.
+TEST(OutputStage, TumTimestampsAreExactAtEpochTimes) {
+  char buf[256];
+  format_tum_line(buf, sizeof buf, 1'403'636'579'763'555'584LL, SE3d::Identity());
+  EXPECT_EQ(std::string(buf).substr(0, 20), "1403636579.763555584");
+  format_tum_line(buf, sizeof buf, 5, SE3d::Identity());
+  EXPECT_EQ(std::string(buf).substr(0, 11), "0.000000005");
+}
+}  // namespace
+}  // namespace mer::pipeline

@@ -269,7 +269,7 @@ TEST(ReplayCamera, StopIsPromptWhileThePrefetcherWaits) {
   std::this_thread::sleep_for(std::chrono::milliseconds(50));
   const std::int64_t t0 = platform::monotonic_now_ns();
   cam->stop();
-  EXPECT_LT(platform::monotonic_now_ns() - t0, 100 * kMs);
+  EXPECT_LT(platform::monotonic_now_ns() - t0, 500 * kMs);
   FrameHandle c;
   EXPECT_EQ(cam->acquire(c, 0), AcquireStatus::kEndOfStream);
   a.reset();
