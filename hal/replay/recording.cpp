@@ -24,6 +24,7 @@ namespace {
 constexpr std::uint32_t kCrcPolynomial = 0xEDB88320U;  // 0x04C11DB7 bit-reversed
 constexpr std::uint32_t kCrcInit = 0xFFFFFFFFU;
 constexpr std::size_t kCrcTableSize = 256;
+constexpr double kMaxQuaternionNormError = 1e-2;  // stored quaternions are unit length
 constexpr unsigned kBitsPerByte = 8;
 constexpr std::uint32_t kByteMask = 0xFFU;
 
@@ -326,6 +327,16 @@ std::optional<RecordingDamage> check_chunk_structure(const RecordingHeader& h,
   if (has_pose) {
     for (std::size_t i = 0; i < kPoseDoubles; ++i) {
       info.pose[i] = get_f64(probe.data() + kChunkPrefixSize + i * sizeof(double));
+      if (!std::isfinite(info.pose[i])) {
+        return make_damage(DamageKind::kBadPose, name, offset, index,
+                           "pose value " + std::to_string(i) + " is not finite");
+      }
+    }
+    const double qn = std::sqrt(info.pose[3] * info.pose[3] + info.pose[4] * info.pose[4] +
+                                info.pose[5] * info.pose[5] + info.pose[6] * info.pose[6]);
+    if (std::abs(qn - 1.0) > kMaxQuaternionNormError) {
+      return make_damage(DamageKind::kBadPose, name, offset, index,
+                         "pose quaternion norm " + std::to_string(qn) + " is not 1");
     }
   }
   info.payload_offset = offset + kChunkPrefixSize + (has_pose ? kChunkPoseSize : 0);
@@ -417,6 +428,8 @@ std::string_view damage_kind_name(DamageKind kind) noexcept {
       return "bad chunk flags";
     case DamageKind::kCrcMismatch:
       return "CRC mismatch";
+    case DamageKind::kBadPose:
+      return "bad pose";
     case DamageKind::kIoError:
       return "I/O error";
   }

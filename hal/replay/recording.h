@@ -155,6 +155,7 @@ enum class DamageKind {
   kBadLength,       ///< chunk or payload length inconsistent with the header (absurd length)
   kBadFlags,        ///< unknown chunk flag bits, or a pose in a recording without ground truth
   kCrcMismatch,     ///< the chunk's bytes do not match its CRC32
+  kBadPose,         ///< the stored pose is not finite or its quaternion is not unit length
   kIoError,         ///< the file could not be read at that offset
 };
 

@@ -126,6 +126,12 @@ Status V4l2Camera::open(std::size_t pool_size) {
   // Re-opening with the same geometry keeps the pool (and any frames still held downstream).
   if (!pool_ || pool_->capacity() != pool_size || pool_->slot(0).gray.cols != w ||
       pool_->slot(0).gray.rows != h) {
+    if (pool_ && pool_->available_approx() != pool_->capacity()) {
+      close_device();
+      return invalid_argument("v4l2:" + device_ +
+                              ": cannot re-open with a new geometry while frames of the old one "
+                              "are still held downstream");
+    }
     pool_ = std::make_unique<FramePool>(
         pool_size, [w, h](Frame& fr, std::size_t) { fr.gray = cv::Mat(h, w, CV_8UC1); });
   }

@@ -7,6 +7,7 @@
 #include <iostream>
 
 #include "app/cli.h"
+#include "app/stop_signal.h"
 #include "app/summary.h"
 #include "core/config_io.h"
 #include "hal/camera_factory.h"
@@ -16,20 +17,7 @@
 
 namespace {
 
-std::atomic<bool> g_stop{false};
-static_assert(std::atomic<bool>::is_always_lock_free, "signal handler needs a lock-free flag");
-
-extern "C" void on_signal(int /*sig*/) {
-  g_stop.store(true, std::memory_order_relaxed);
-}
-
-void install_signal_handlers() {
-  struct sigaction sa {};
-  sa.sa_handler = on_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
+std::atomic<bool>& g_stop = mer::app::stop_flag();
 
 mer::platform::LogLevel parse_level(const std::string& s) {
   using mer::platform::LogLevel;
@@ -48,7 +36,7 @@ int fail(const mer::Status& s) {
 
 int main(int argc, char** argv) {
   using namespace mer;
-  install_signal_handlers();
+  mer::app::install_stop_signal_handlers();
   (void)platform::default_log();  // construct before any hot thread logs
 
   auto parsed = app::parse_cli(argc, argv);

@@ -20,6 +20,7 @@
 #include <opencv2/core.hpp>
 
 #include "hal/libcamera/libcamera_camera.h"
+#include "hw_check.h"
 #include "platform/alloc_counter.h"
 #include "platform/clock.h"
 #include "platform/log_ring.h"
@@ -47,24 +48,9 @@ constexpr double kMinStdDev = 10.0;  // vimc's test pattern: far from a constant
 constexpr std::size_t kMaxProblems = 5;
 constexpr std::string_view kUriPrefix = "libcamera:";
 
-int g_failures = 0;
-
-void report(bool ok, const std::string& name, const std::string& detail) {
-  std::printf("MER_HW_CHECK %s %s: %s\n", ok ? "PASS" : "FAIL", name.c_str(), detail.c_str());
-  std::fflush(stdout);
-  mer::platform::flush_default_log_to_stderr(mer::platform::LogLevel::kInfo);
-  if (!ok) ++g_failures;
-}
-
-bool contains(const std::string& s, const std::string& part) {
-  return s.find(part) != std::string::npos;
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
+using mer::hw::contains;
+using mer::hw::fmt;
+using mer::hw::report;
 
 LibcameraOptions default_options() {
   LibcameraOptions o;
@@ -308,7 +294,8 @@ int main(int argc, char** argv) {
     check_open_by(found, "open_by_id");
     check_open_by("0", "open_by_index");
   }
-  std::printf("MER_HW_SUMMARY %s (%d failed)\n", g_failures == 0 ? "PASS" : "FAIL", g_failures);
+  std::printf("MER_HW_SUMMARY %s (%d failed)\n", mer::hw::failures() == 0 ? "PASS" : "FAIL",
+              mer::hw::failures());
   mer::platform::flush_default_log_to_stderr(mer::platform::LogLevel::kInfo);
-  return g_failures == 0 ? 0 : 1;
+  return mer::hw::failures() == 0 ? 0 : 1;
 }

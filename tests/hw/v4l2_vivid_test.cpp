@@ -26,6 +26,7 @@
 
 #include "hal/v4l2/v4l2_camera.h"
 #include "hal/v4l2/v4l2_controls.h"
+#include "hw_check.h"
 #include "platform/alloc_counter.h"
 #include "platform/clock.h"
 #include "platform/log_ring.h"
@@ -59,24 +60,9 @@ constexpr int kDropFrames = 20;                           // frames captured whi
 constexpr int kRetryDelayMs = 100;
 constexpr int kRetries = 2;
 
-int g_failures = 0;
-
-void report(bool ok, const std::string& name, const std::string& detail) {
-  std::printf("MER_HW_CHECK %s %s: %s\n", ok ? "PASS" : "FAIL", name.c_str(), detail.c_str());
-  std::fflush(stdout);
-  mer::platform::flush_default_log_to_stderr(mer::platform::LogLevel::kInfo);
-  if (!ok) ++g_failures;
-}
-
-bool contains(const std::string& s, const std::string& part) {
-  return s.find(part) != std::string::npos;
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
+using mer::hw::contains;
+using mer::hw::fmt;
+using mer::hw::report;
 
 V4l2Options options_for(const std::string& pixel_format) {
   V4l2Options o;
@@ -532,7 +518,8 @@ int main() {
   check_disconnect(dev, needed[4].control, DisconnectCase::kRetryGone);
 
   const double total_s = static_cast<double>(mer::platform::monotonic_now_ns() - t_start) / kNsPerS;
-  std::printf("MER_HW_SUMMARY %d failed checks, %.1f s in the guest\n", g_failures, total_s);
+  std::printf("MER_HW_SUMMARY %d failed checks, %.1f s in the guest\n", mer::hw::failures(),
+              total_s);
   mer::platform::flush_default_log_to_stderr(mer::platform::LogLevel::kInfo);
-  return g_failures == 0 ? 0 : 1;
+  return mer::hw::failures() == 0 ? 0 : 1;
 }

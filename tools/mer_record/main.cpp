@@ -22,6 +22,7 @@
 
 #include "app/cli.h"
 #include "app/slam_config.h"
+#include "app/stop_signal.h"
 #include "core/config_io.h"
 #include "hal/camera_factory.h"
 #include "hal/replay/recording.h"
@@ -48,20 +49,7 @@ constexpr auto kBackoff = std::chrono::milliseconds(1);
 constexpr double kNsPerS = 1e9;
 constexpr double kBytesPerMiB = 1024.0 * 1024.0;
 
-std::atomic<bool> g_stop{false};
-static_assert(std::atomic<bool>::is_always_lock_free, "signal handler needs a lock-free flag");
-
-extern "C" void on_signal(int /*sig*/) {
-  g_stop.store(true, std::memory_order_relaxed);
-}
-
-void install_signal_handlers() {
-  struct sigaction sa {};
-  sa.sa_handler = on_signal;
-  sigemptyset(&sa.sa_mask);
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
+std::atomic<bool>& g_stop = app::stop_flag();
 
 /// Parsed command line.
 struct Args {
@@ -321,7 +309,7 @@ void print_summary(std::ostream& os, const Args& args, const hal::CameraSource& 
 }  // namespace
 
 int main(int argc, char** argv) {
-  install_signal_handlers();
+  app::install_stop_signal_handlers();
   (void)platform::default_log();  // construct before any hot thread logs
 
   auto parsed = parse_args(argc, argv);

@@ -2,6 +2,8 @@
 // through both the in-memory parser and the file reader; absurd lengths; specific kinds.
 #include <sys/resource.h>
 
+#include <limits>
+
 #include <gtest/gtest.h>
 
 #include "hal/replay/recording.h"
@@ -169,6 +171,30 @@ long max_rss_kib() {
 
 // Length fields claiming gigabytes: the reader compares them with the header and the file
 // size before allocating, so memory stays flat and the damage is reported.
+// A chunk whose CRC is right but whose stored pose is NaN or not a rotation: the frames
+// before it replay and the damage is named, instead of NaN poses reaching the evaluator.
+TEST(RecordingDamage, InvalidStoredPoseEndsTheStream) {
+  for (const bool nan_pose : {true, false}) {
+    MemRecording m = make_mem_recording(3);
+    Frame bad = m.frames[1];
+    if (nan_pose) {
+      bad.T_w_c_gt.translation().x() = std::numeric_limits<double>::quiet_NaN();
+    } else {
+      bad.T_w_c_gt.linear() *= 2.0;  // quaternion of a scaled matrix is not unit length
+    }
+    std::vector<std::uint8_t> bytes = encode_header(m.header);
+    for (int k = 0; k < 3; ++k) {
+      ASSERT_TRUE(encode_chunk(m.header, k == 1 ? bad : m.frames[k], bytes).is_ok());
+    }
+    auto parsed = parse_recording(bytes);
+    ASSERT_TRUE(parsed.is_ok()) << parsed.status().message();
+    EXPECT_EQ(parsed.value().frames.size(), 1U) << (nan_pose ? "NaN" : "scaled");
+    ASSERT_TRUE(parsed.value().damage.has_value());
+    EXPECT_EQ(parsed.value().damage->kind, DamageKind::kBadPose);
+    EXPECT_EQ(parsed.value().damage->frame_index, 1U);
+  }
+}
+
 TEST(RecordingDamage, AbsurdLengthsDoNotAllocate) {
   constexpr long kMaxGrowthKib = 64 * 1024;
   const long rss0 = max_rss_kib();
