@@ -5,8 +5,10 @@
 #include <atomic>
 #include <cerrno>
 #include <charconv>
+#include <cmath>
 #include <cstring>
 #include <map>
+#include <numbers>
 #include <span>
 #include <vector>
 
@@ -164,7 +166,10 @@ class LibcameraCamera final : public CameraSource {
       }
       requests_.push_back(std::move(req));
     }
-    intrinsics_ = CameraIntrinsics{w, h, 0.0, 0.0, 0.5 * (w - 1), 0.5 * (h - 1), {}, false};
+    // libcamera reports no calibration: a focal guess from the assumed field of view, marked
+    // unknown (calibrate with --intrinsics, or let focal estimation refine it).
+    const double focal = 0.5 * w / std::tan(0.5 * opts_.hfov_deg * std::numbers::pi / 180.0);
+    intrinsics_ = CameraIntrinsics{w, h, focal, focal, 0.5 * (w - 1), 0.5 * (h - 1), {}, false};
     pool_ = std::make_unique<FramePool>(
         pool_size, [w, h](Frame& f, std::size_t) { f.gray = cv::Mat(h, w, CV_8UC1); });
     description_ = "libcamera:" + camera_->id() + " (" + sc.toString() + ")";
@@ -193,6 +198,7 @@ class LibcameraCamera final : public CameraSource {
     if (int r = camera_->start(&controls); r != 0) {
       return input_error(description_ + ": start failed: " + std::strerror(-r));
     }
+    seq_offset_ = next_seq_;
     running_ = true;
     requeue_error_.store(0, std::memory_order_relaxed);
     for (auto& req : requests_) {
@@ -247,7 +253,9 @@ class LibcameraCamera final : public CameraSource {
           ++frame_errors_;  // buffer shorter than the configured layout: drop and count
           result = AcquireStatus::kTimeout;
         } else {
-          h->seq = md.sequence;
+          // libcamera's 32-bit sequence restarts at every start(): continue numbering.
+          h->seq = seq_offset_ + md.sequence;
+          next_seq_ = h->seq + 1;
           h->t_ns = static_cast<std::int64_t>(md.timestamp);
           h->t_ready_ns = platform::monotonic_now_ns();
           h->produce_ns = h->t_ready_ns - t0;
@@ -345,6 +353,8 @@ class LibcameraCamera final : public CameraSource {
   std::size_t stride_ = 0;
   bool acquired_ = false;
   bool running_ = false;
+  std::uint64_t seq_offset_ = 0;     // added to libcamera's sequence (restarts at start())
+  std::uint64_t next_seq_ = 0;       // one past the last sequence number handed out
   bool frame_rate_control_ = false;  // the camera has FrameDurationLimits (fps is applied)
   bool connected_ = false;           // requestCompleted is connected to on_request_completed
   platform::SpscRing<std::uint32_t, kCompletedRing> completed_;  // libcamera -> acquire()

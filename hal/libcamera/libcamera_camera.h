@@ -28,6 +28,7 @@ struct LibcameraOptions {
   std::string pixel_format = "auto";  ///< auto picks the first supported, gray formats first
   int buffers = 4;                    ///< frame buffers allocated by libcamera
   int dequeue_timeout_ms = 1000;      ///< acquire() waits this long for a completed request
+  double hfov_deg = 60.0;  ///< assumed horizontal field of view for the initial focal guess
 
   template <class V>
   void visit(V& v) {
@@ -36,6 +37,9 @@ struct LibcameraOptions {
     v.field("fps", fps, "requested frame rate, Hz", options::Range<double>{1.0, 1000.0});
     v.field("pixel_format", pixel_format, "stream pixel format", options::OneOf{kLibcameraFormats});
     v.field("buffers", buffers, "frame buffers allocated by libcamera", options::Range<int>{2, 32});
+    v.field("hfov_deg", hfov_deg,
+            "assumed horizontal field of view: initial focal guess (focal_known = false)",
+            options::Range<double>{10.0, 170.0});
     v.field("dequeue_timeout_ms", dequeue_timeout_ms, "wait for a completed request, ms",
             options::Range<int>{1, 60000});
   }
