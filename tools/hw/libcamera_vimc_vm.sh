@@ -206,15 +206,5 @@ for f in "${ipa_files[@]}"; do
 done
 vm_stage_libs "$run/stage" "$BINARY" "${ipa_bins[@]}"
 grep -q 'libcamera' < <(ldd "$BINARY") || vm_fail "$BINARY does not link libcamera"
-vm_cpio "$run/stage" "$run/test.cpio"
-cat "$base_cpio" "$run/test.cpio" >"$run/initrd.cpio"
-t_prep=$(date +%s.%N)
-vm_log "prepared in $(vm_elapsed "$t_start" "$t_prep") s" \
-  "(kernel $VM_KVER, initrd $(($(stat -c %s "$run/initrd.cpio") / 1024 / 1024)) MiB)"
-
-# ---- 5. boot -----------------------------------------------------------------------------
-vm_boot "$run/initrd.cpio" "$TIMEOUT_S" "$SMP"
-t_end=$(date +%s.%N)
-vm_log "VM wall time ${VM_BOOT_S} s (total $(vm_elapsed "$t_start" "$t_end") s), qemu exit status $VM_QEMU_RC, console log $VM_CONSOLE"
-vm_check_result "$TIMEOUT_S"
-vm_log "PASS"
+# ---- 5. pack, boot, check ---------------------------------------------------------------
+vm_pack_boot_check "$base_cpio" "$run" "$t_start" "$TIMEOUT_S" "$SMP"

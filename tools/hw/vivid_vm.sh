@@ -108,16 +108,5 @@ mkdir -p "$run/stage/mer"
 cp "$BINARY" "$run/stage/mer/test"
 printf '%s ' "${PROG_ARGS[@]+"${PROG_ARGS[@]}"}" >"$run/stage/mer/args"
 vm_stage_libs "$run/stage" "$BINARY"
-vm_cpio "$run/stage" "$run/test.cpio"
-# The kernel unpacks concatenated newc archives in order.
-cat "$base_cpio" "$run/test.cpio" >"$run/initrd.cpio"
-t_prep=$(date +%s.%N)
-vm_log "prepared in $(vm_elapsed "$t_start" "$t_prep") s" \
-  "(kernel $VM_KVER, initrd $(($(stat -c %s "$run/initrd.cpio") / 1024 / 1024)) MiB)"
-
-# ---- 5. boot ---------------------------------------------------------------------------
-vm_boot "$run/initrd.cpio" "$TIMEOUT_S" "$SMP"
-t_end=$(date +%s.%N)
-vm_log "VM wall time ${VM_BOOT_S} s (total $(vm_elapsed "$t_start" "$t_end") s), qemu exit status $VM_QEMU_RC, console log $VM_CONSOLE"
-vm_check_result "$TIMEOUT_S"
-vm_log "PASS"
+# ---- 5. pack, boot, check ---------------------------------------------------------------
+vm_pack_boot_check "$base_cpio" "$run" "$t_start" "$TIMEOUT_S" "$SMP"

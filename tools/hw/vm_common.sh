@@ -254,3 +254,21 @@ vm_check_result() {
   fi
   [ "$result" -eq 0 ] || vm_fail "test program failed in the VM (rc=$result); see the checks above"
 }
+
+# Packs the staged test files, appends them to the base initramfs (the kernel unpacks
+# concatenated newc archives in order), boots, reports timings and checks the result.
+# Usage: vm_pack_boot_check BASE_CPIO RUN_DIR T_START TIMEOUT_S SMP
+vm_pack_boot_check() {
+  local base_cpio=$1 run=$2 t_start=$3 timeout_s=$4 smp=$5
+  vm_cpio "$run/stage" "$run/test.cpio"
+  cat "$base_cpio" "$run/test.cpio" >"$run/initrd.cpio"
+  local t_prep t_end
+  t_prep=$(date +%s.%N)
+  vm_log "prepared in $(vm_elapsed "$t_start" "$t_prep") s" \
+    "(kernel $VM_KVER, initrd $(($(stat -c %s "$run/initrd.cpio") / 1024 / 1024)) MiB)"
+  vm_boot "$run/initrd.cpio" "$timeout_s" "$smp"
+  t_end=$(date +%s.%N)
+  vm_log "VM wall time ${VM_BOOT_S} s (total $(vm_elapsed "$t_start" "$t_end") s), qemu exit status $VM_QEMU_RC, console log $VM_CONSOLE"
+  vm_check_result "$timeout_s"
+  vm_log "PASS"
+}
