@@ -7,6 +7,8 @@
 
 find_package(Threads REQUIRED)
 find_package(Eigen3 3.3 QUIET NO_MODULE)
+# Ceres (libceres-dev): bundle adjustment of the covisibility window.
+find_package(Ceres 2.1 QUIET)
 
 find_path(MER_OPENCV_INCLUDE_DIR opencv2/core.hpp PATH_SUFFIXES opencv4)
 set(MER_OPENCV_MODULES core imgproc features2d imgcodecs)
@@ -25,7 +27,7 @@ foreach(mod IN LISTS MER_OPENCV_MODULES)
   endif()
 endforeach()
 
-if(TARGET Eigen3::Eigen AND MER_OPENCV_FOUND)
+if(TARGET Eigen3::Eigen AND MER_OPENCV_FOUND AND TARGET Ceres::ceres)
   set(MER_HAVE_CORE_DEPS TRUE)
   # imgproc/features2d depend on core at link time.
   set_property(TARGET mer::opencv_imgproc APPEND PROPERTY INTERFACE_LINK_LIBRARIES mer::opencv_core)
@@ -34,4 +36,5 @@ if(TARGET Eigen3::Eigen AND MER_OPENCV_FOUND)
 else()
   set(MER_HAVE_CORE_DEPS FALSE)
 endif()
-message(STATUS "mer-slam: Eigen3 ${Eigen3_VERSION}, OpenCV modules found: ${MER_OPENCV_FOUND}")
+message(STATUS "mer-slam: Eigen3 ${Eigen3_VERSION}, OpenCV modules found: ${MER_OPENCV_FOUND}, "
+               "Ceres ${Ceres_VERSION}")

@@ -19,6 +19,7 @@ JOBS="${MER_JOBS:-2}"
 PACKAGES=(
   g++ cmake make ccache pkg-config
   libeigen3-dev
+  libceres-dev
   libopencv-core-dev libopencv-imgproc-dev libopencv-features2d-dev libopencv-imgcodecs-dev
   libcamera-dev
   libgtest-dev libbenchmark-dev

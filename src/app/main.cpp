@@ -67,12 +67,6 @@ int main(int argc, char** argv) {
       platform::find_board(config.board.profile).value_or(platform::kBoardGenericX86);
   (void)drain.start(board.log);
 
-  if (config.pipeline.focal == "auto") {
-    MER_LOG_WARN(
-        "--focal auto: focal estimation arrives with the localization front end; this build "
-        "uses the source's calibration");
-  }
-
   app::RunInfo info;
   info.input = args.input;
   info.sensor_mode = config.pipeline.mode;
@@ -106,8 +100,9 @@ int main(int argc, char** argv) {
                                      (ec ? ": " + ec.message() : std::string())));
       }
     }
-    pipeline::PipelineConfig pc{config.pipeline, config.board, config.telemetry, config.output,
-                                config.tracking};
+    pipeline::PipelineConfig pc{config.pipeline, config.board,    config.telemetry,
+                                config.output,   config.tracking, config.map,
+                                config.depth,    config.backend,  info.intrinsics};
     pipeline::Pipeline pipe(pc, camera, g_stop);
     Status s = pipe.init(args.output_dir);
     if (!s.is_ok()) {
@@ -121,6 +116,7 @@ int main(int argc, char** argv) {
       code = app::exit_code_for(s);
     }
     drain.stop();  // print pending warnings before the summary
+    info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
     if (!args.output_dir.empty()) {
       const std::string path = (std::filesystem::path(args.output_dir) / "summary.json").string();
       if (Status w = app::write_file_atomic(path, app::summary_json(pipe.stats(), info));

@@ -4,9 +4,12 @@
 /// defaults, then `--config FILE`, then `--board FILE`, then command-line flags; validated
 /// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
 
+#include "backend/local_ba.h"
 #include "core/options.h"
-#include "frontend/placeholder_tracker.h"
+#include "depth/depth_options.h"
+#include "frontend/tracking_options.h"
 #include "hal/camera_factory.h"
+#include "map/map.h"
 #include "pipeline/pipeline_options.h"
 
 namespace mer::app {
@@ -16,6 +19,9 @@ struct SlamConfig {
   pipeline::PipelineOptions pipeline;
   hal::CameraOptions camera;
   frontend::TrackingOptions tracking;
+  map::MapOptions map;
+  depth::DepthOptions depth;
+  backend::LocalBaOptions backend;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;
@@ -24,7 +30,10 @@ struct SlamConfig {
   void visit(V& v) {
     v.section("pipeline", pipeline, "how the pipeline runs");
     v.section("camera", camera, "frame sources");
-    v.section("tracking", tracking, "tracking stage");
+    v.section("tracking", tracking, "tracking stage (localization front end)");
+    v.section("map", map, "map capacities and 3D cells");
+    v.section("depth", depth, "keyframe creation and depth inference");
+    v.section("backend", backend, "local bundle adjustment of the covisibility window");
     v.section("board", board, "thread placement and latency budgets");
     v.section("telemetry", telemetry, "latency and allocation accounting");
     v.section("output", output, "output files");

@@ -91,6 +91,61 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"fx\": " << num(k.fx) << ", \"fy\": " << num(k.fy) << ", \"cx\": " << num(k.cx)
     << ", \"cy\": " << num(k.cy) << "},\n";
   j << "  \"pose_source\": " << json_string(st.pose_source) << ",\n";
+  const AccuracyReport& a = info.accuracy;
+  if (a.available) {
+    j << "  \"accuracy\": {\"align\": " << json_string(a.alignment) << ", \"pairs\": " << a.pairs
+      << ", \"gt_frames\": " << a.gt_frames << ", \"scale\": " << num(a.scale)
+      << ", \"ate_rmse_m\": " << num(a.ate_rmse_m) << ", \"ate_mean_m\": " << num(a.ate_mean_m)
+      << ", \"ate_median_m\": " << num(a.ate_median_m) << ", \"ate_max_m\": " << num(a.ate_max_m)
+      << ", \"path_length_m\": " << num(a.path_length_m)
+      << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
+      << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
+  } else {
+    j << "  \"accuracy\": {\"note\": " << json_string(a.note) << "},\n";
+  }
+  const frontend::TrackerCounters& tc = st.tracker;
+  j << "  \"tracking\": {\"initialized\": " << (tc.initialized ? "true" : "false")
+    << ", \"initialized_seq\": " << tc.initialized_seq
+    << ", \"init_attempts\": " << tc.init_attempts << ", \"init_refusals\": " << tc.init_refusals
+    << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal)
+    << ", \"tracked\": " << tc.tracked << ", \"lost\": " << tc.lost
+    << ", \"wide_searches\": " << tc.wide_searches;
+  const double nt = tc.tracked > 0 ? static_cast<double>(tc.tracked) : 1.0;
+  j << ", \"mean_inliers\": " << num(static_cast<double>(tc.sum_inliers) / nt)
+    << ", \"mean_query_temporal\": " << num(static_cast<double>(tc.sum_query_temporal) / nt)
+    << ", \"mean_query_spatial\": " << num(static_cast<double>(tc.sum_query_spatial) / nt)
+    << ", \"mean_query_total\": " << num(static_cast<double>(tc.sum_query_total) / nt)
+    << ", \"keyframe_reasons\": {";
+  for (std::size_t i = 1; i < std::size(tc.keyframe_reasons); ++i) {
+    j << (i > 1 ? ", " : "")
+      << json_string(frontend::to_string(static_cast<frontend::KeyframeReason>(i))) << ": "
+      << tc.keyframe_reasons[i];
+  }
+  j << "}},\n";
+  j << "  \"tracking_steps_ms\": {";
+  for (std::size_t i = 0; i < st.tracking_steps.size(); ++i) {
+    const auto& l = st.tracking_steps[i];
+    j << (i ? ", " : "") << json_string(l.name) << ": {\"p50\": " << num(l.p50_ms)
+      << ", \"p99\": " << num(l.p99_ms) << ", \"mean\": " << num(l.mean_ms) << "}";
+  }
+  j << "},\n";
+  const frontend::FocalReport& f = st.focal;
+  j << "  \"focal\": {\"estimated\": " << (f.estimated ? "true" : "false")
+    << ", \"initial\": " << num(f.initial) << ", \"value\": " << num(f.value)
+    << ", \"fixed\": " << (f.fixed ? "true" : "false") << ", \"fixed_at_seq\": " << f.fixed_at_seq
+    << ", \"estimates\": " << f.estimates << "},\n";
+  const depth::KeyframeBuildTotals& m = st.mapping;
+  j << "  \"map\": {\"keyframes\": " << st.keyframes << ", \"points\": " << st.map_points
+    << ", \"keyframes_deferred\": " << st.keyframes_deferred
+    << ", \"depth_backend\": " << json_string(st.depth_backend)
+    << ", \"keyframe_jobs\": " << m.keyframes << ", \"keyframe_failures\": " << m.failures
+    << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
+    << ", \"depth_valid\": " << m.depth_valid << "},\n";
+  const backend::LocalBaTotals& ba = st.backend;
+  j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
+    << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers
+    << ", \"mean_ms\": " << num(ba.runs ? ba.total_ms / static_cast<double>(ba.runs) : 0.0)
+    << ", \"max_ms\": " << num(ba.max_ms) << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -130,7 +185,19 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
   os << "  frames: in " << st.frames_in << ", processed " << st.frames_processed << ", dropped "
      << st.frames_dropped << ", lost " << st.frames_lost << ", keyframes " << st.keyframes << "  ("
      << st.end_reason << ", " << std::fixed << std::setprecision(2) << st.wall_time_s << " s)\n";
-  os << "  poses: " << st.pose_source << "\n";
+  os << "  poses: " << st.pose_source << "; map: " << st.keyframes << " keyframes, "
+     << st.map_points << " points";
+  if (st.focal.estimated) os << "; focal " << std::setprecision(2) << st.focal.value << " px";
+  os << "\n";
+  if (info.accuracy.available) {
+    const AccuracyReport& a = info.accuracy;
+    os << "  ATE (" << a.alignment << ", " << a.pairs << " poses): rmse " << std::setprecision(4)
+       << a.ate_rmse_m << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of "
+       << std::setprecision(2) << a.path_length_m << " m path; tracked " << std::setprecision(1)
+       << a.tracked_after_init_pct << " % after init\n";
+  } else {
+    os << "  ATE: " << info.accuracy.note << "\n";
+  }
   os << "  latency ms      p50      p90      p99      max   budget  overruns\n";
   for (const auto& l : st.latency) {
     os << "  " << std::left << std::setw(12) << l.name << std::right << std::fixed

@@ -12,6 +12,7 @@
 #include <ostream>
 #include <string>
 
+#include "app/accuracy.h"
 #include "core/status.h"
 #include "hal/camera.h"
 #include "pipeline/pipeline.h"
@@ -25,7 +26,8 @@ struct RunInfo {
   hal::CameraIntrinsics intrinsics;  ///< calibration in use
   std::string sensor_mode;           ///< mono | rgbd
   bool stopped_by_signal = false;
-  std::string error;  ///< non-empty when the run failed
+  std::string error;        ///< non-empty when the run failed
+  AccuracyReport accuracy;  ///< ATE against the source's ground truth (when it had one)
 };
 
 /// Renders summary.json.

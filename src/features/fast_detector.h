@@ -40,6 +40,33 @@ struct FastOptions {
   }
 };
 
+/// Low-level FAST-9 kernel shared by FastDetector and the ORB extractor (orb_extractor.cpp).
+///
+/// Tests the pixels x in [x0, x1) of one image row at threshold `threshold` (1..254).
+/// `row` points at pixel (0, y) of an 8-bit image with row pitch `stride` bytes; rows
+/// y-3..y+3 and columns x0-3..x1+2 must exist. For every corner found, its score (> 0, see
+/// the file comment) is written to `score_row[x]` and x is appended to `xs` (room for
+/// x1 - x0 entries); other entries of `score_row` are not touched. Returns the number of
+/// corners. No allocation.
+///
+/// Speed: 16 pixels at a time in portable 8-bit code that the compiler vectorizes (SSE2,
+/// NEON): a pre-test on the two compass pairs (a 9-arc holds one pixel of every opposite
+/// pair of the circle) rejects most blocks, then the full segment test of the block
+/// (runs of 9 by doubling: 2, 4, 8, 8 + 1), then the score of each corner. About as fast
+/// as cv::FAST without suppression on a 640x480 frame.
+int fast_row(const std::uint8_t* row, std::ptrdiff_t stride, int x0, int x1, int threshold,
+             std::uint16_t* score_row, std::int32_t* xs);
+
+/// True when pixel x of `score_row` (score of row y; `up`/`down` are rows y-1 and y+1)
+/// survives FAST's 3x3 non-maximum suppression. Ties go to the earlier pixel in raster
+/// order, so of two equal neighbours exactly one survives.
+inline bool fast_is_local_max(const std::uint16_t* up, const std::uint16_t* score_row,
+                              const std::uint16_t* down, int x) {
+  const int v = score_row[x];
+  return v >= score_row[x + 1] && v > score_row[x - 1] && v > up[x - 1] && v > up[x] &&
+         v > up[x + 1] && v >= down[x - 1] && v >= down[x] && v >= down[x + 1];
+}
+
 /// A detected corner.
 struct Corner {
   std::int16_t x = 0;      ///< column, px
@@ -66,9 +93,10 @@ class FastDetector {
   FastOptions opts_;
   int width_;
   int height_;
-  std::vector<std::int32_t> score_;  // per pixel, 0 = not a corner
-  std::vector<Corner> candidates_;   // capacity max_candidates
-  std::vector<Corner> kept_;         // capacity max_corners
+  std::vector<std::uint16_t> score_;  // per pixel, 0 = not a corner
+  std::vector<std::int32_t> xs_;      // fast_row output, one row
+  std::vector<Corner> candidates_;    // capacity max_candidates
+  std::vector<Corner> kept_;          // capacity max_corners
   std::uint64_t dropped_ = 0;
 };
 

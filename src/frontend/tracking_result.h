@@ -33,16 +33,51 @@ constexpr const char* to_string(TrackState s) {
 /// Stages whose per-frame latency is carried with the result (columns of latency.csv).
 enum class StageId : std::uint8_t { kCapture = 0, kTracking = 1, kQueue = 2, kCount = 3 };
 
+/// Steps of tracking whose time is carried with each result (the latency breakdown).
+enum class TrackStep : std::uint8_t { kExtract = 0, kQuery, kMatch, kPose, kDecide, kCount };
+
+/// Printable name of a TrackStep.
+constexpr const char* to_string(TrackStep s) {
+  switch (s) {
+    case TrackStep::kExtract:
+      return "extract";
+    case TrackStep::kQuery:
+      return "query";
+    case TrackStep::kMatch:
+      return "match";
+    case TrackStep::kPose:
+      return "pose";
+    case TrackStep::kDecide:
+      return "decide";
+    case TrackStep::kCount:
+      break;
+  }
+  return "?";
+}
+
 /// Per-frame output of the tracking stage.
 struct TrackingResult {
   std::uint64_t seq = 0;  ///< frame sequence number from the source
   std::int64_t t_ns = 0;  ///< frame timestamp, ns
   TrackState state = TrackState::kNotInitialized;
-  bool is_keyframe = false;        ///< this frame became a keyframe
-  SE3d T_w_c = SE3d::Identity();   ///< camera-to-world pose (valid when tracked)
-  std::int32_t num_features = 0;   ///< features detected
-  std::uint64_t feature_hash = 0;  ///< FNV-1a over feature positions (determinism checks)
-  std::int64_t t_ready_ns = 0;     ///< monotonic time the frame was ready in the pool
+  bool is_keyframe = false;          ///< this frame became a keyframe
+  bool keyframe_job = false;         ///< the keyframe still has to be created (queue a job)
+  SE3d T_w_c = SE3d::Identity();     ///< camera-to-world pose (valid when tracked)
+  std::int32_t num_features = 0;     ///< features detected
+  std::int32_t num_matches = 0;      ///< map-point matches given to PnP
+  std::int32_t num_inliers = 0;      ///< matches consistent with the pose
+  std::int32_t query_temporal = 0;   ///< |Q_T|: points of the recently tracked keyframes
+  std::int32_t query_spatial = 0;    ///< |Q_S|: points in the cells visible from the prediction
+  std::int32_t query_total = 0;      ///< |Q_T u Q_S|
+  std::uint8_t keyframe_reason = 0;  ///< KeyframeReason that fired (0: none)
+  bool steady = false;               ///< tracked against an existing map (not initializing)
+  float kl = 0.0F;                   ///< KL divergence of the tracked-point histogram
+  double focal = 0.0;                ///< focal length used, px
+  std::array<std::int32_t, static_cast<std::size_t>(TrackStep::kCount)> step_ns{};  ///< breakdown
+  std::uint64_t feature_hash = 0;    ///< FNV-1a over feature positions (determinism checks)
+  bool has_ground_truth = false;     ///< the source knew the true pose of this frame
+  SE3d T_w_c_gt = SE3d::Identity();  ///< true camera-to-world pose (when has_ground_truth)
+  std::int64_t t_ready_ns = 0;       ///< monotonic time the frame was ready in the pool
   std::array<std::int64_t, static_cast<std::size_t>(StageId::kCount)> stage_ns{};  ///< latencies
 };
 

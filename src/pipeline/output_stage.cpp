@@ -5,6 +5,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "frontend/keyframe_policy.h"
 #include "platform/clock.h"
 
 namespace mer::pipeline {
@@ -57,9 +58,11 @@ Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   const std::filesystem::path d(dir);
   Status s = open_file(trajectory_, (d / "trajectory.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(keyframes_, (d / "keyframes.txt").string(), nullptr);
+  if (s.is_ok()) s = open_file(ground_truth_, (d / "groundtruth.txt").string(), nullptr);
   if (s.is_ok()) {
     s = open_file(frames_csv_, (d / "frames.csv").string(),
-                  "seq,t_s,state,keyframe,features,feature_hash\n");
+                  "seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,query_s,"
+                  "query_total,keyframe_reason,kl,focal\n");
   }
   if (s.is_ok()) {
     s = open_file(latency_csv_, (d / "latency.csv").string(),
@@ -78,11 +81,19 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
   }
+  if (r.has_ground_truth) {
+    const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c_gt);
+    std::fwrite(line.data(), 1, static_cast<std::size_t>(n), ground_truth_.f);
+  }
   char t_s[32];
   format_seconds(t_s, sizeof t_s, r.t_ns);
-  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx\n", static_cast<unsigned long long>(r.seq),
-               t_s, frontend::to_string(r.state), r.is_keyframe ? 1 : 0, r.num_features,
-               static_cast<unsigned long long>(r.feature_hash));
+  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx,%d,%d,%d,%d,%d,%s,%.4f,%.3f\n",
+               static_cast<unsigned long long>(r.seq), t_s, frontend::to_string(r.state),
+               r.is_keyframe ? 1 : 0, r.num_features,
+               static_cast<unsigned long long>(r.feature_hash), r.num_matches, r.num_inliers,
+               r.query_temporal, r.query_spatial, r.query_total,
+               frontend::to_string(static_cast<frontend::KeyframeReason>(r.keyframe_reason)),
+               static_cast<double>(r.kl), r.focal);
   if (frames_ % static_cast<std::uint64_t>(opts_.flush_every) == 0) flush_all();
   const std::int64_t out_ns = platform::monotonic_now_ns() - t0;
   using S = frontend::StageId;
@@ -97,7 +108,7 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
 }
 
 void OutputStage::flush_all() {
-  for (File* f : {&trajectory_, &keyframes_, &frames_csv_, &latency_csv_}) {
+  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &frames_csv_, &latency_csv_}) {
     if (f->f != nullptr && (std::fflush(f->f) != 0 || std::ferror(f->f) != 0)) write_error_ = true;
   }
 }
@@ -105,7 +116,7 @@ void OutputStage::flush_all() {
 Status OutputStage::close() {
   Status result;
   flush_all();
-  for (File* f : {&trajectory_, &keyframes_, &frames_csv_, &latency_csv_}) {
+  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &frames_csv_, &latency_csv_}) {
     if (f->f == nullptr) continue;
     const bool bad = std::ferror(f->f) != 0;
     if (std::fclose(f->f) != 0 || bad) {

@@ -7,7 +7,9 @@
 /// Files (in the --output directory):
 /// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every tracked frame
 /// - keyframes.txt   same format, keyframes only
-/// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash` for every processed frame
+/// - groundtruth.txt same format, the true pose of every frame whose source knew it
+/// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,
+///                   query_s,query_total,keyframe_reason,kl,focal` for every processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
 
 #include <cstdint>
@@ -52,6 +54,7 @@ class OutputStage {
   OutputOptions opts_;
   File trajectory_;
   File keyframes_;
+  File ground_truth_;  // true poses of the frames whose source knew them
   File frames_csv_;
   File latency_csv_;
   std::uint64_t frames_ = 0;

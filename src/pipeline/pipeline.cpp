@@ -96,7 +96,20 @@ Status Pipeline::init(const std::string& output_dir) {
                             " (capture ring + frames being captured and tracked), found " +
                             std::to_string(camera_.pool().capacity()));
   }
-  tracker_ = std::make_unique<frontend::PlaceholderTracker>(config_.tracking, K.width, K.height);
+  map_ = std::make_unique<map::Map>(config_.map);
+  const hal::CameraIntrinsics& Kc = config_.intrinsics.fx > 0.0 ? config_.intrinsics : K;
+  const geometry::Pinhole pinhole{Kc.fx, Kc.fy, Kc.cx, Kc.cy};
+  tracker_ =
+      std::make_unique<frontend::Tracker>(config_.tracking, *map_, pinhole, K.width, K.height,
+                                          config_.pipeline.mode, config_.pipeline.focal == "auto");
+  if (Status t = tracker_->init(); !t.is_ok()) return t;
+  builder_ = std::make_unique<depth::KeyframeBuilder>(config_.depth, config_.pipeline.mode, *map_,
+                                                      tracker_->level_sigma2());
+  if (Status d = builder_->init(); !d.is_ok()) return d;
+  ba_ = std::make_unique<backend::LocalBundleAdjuster>(
+      config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep);
+  jobs_.resize(kKeyframeJobs);
+  for (auto& j : jobs_) j.reserve(tracker_->max_keypoints(), K.width, K.height);
   const auto trace = static_cast<std::size_t>(config_.telemetry.trace_capacity);
   const BoardOptions& b = config_.board;
   lat_capture_ =
@@ -107,6 +120,11 @@ Status Pipeline::init(const std::string& output_dir) {
       std::make_unique<platform::LatencyRecorder>("output", ms_to_ns(b.output_budget_ms), trace);
   lat_end_to_end_ = std::make_unique<platform::LatencyRecorder>(
       "end_to_end", ms_to_ns(b.end_to_end_budget_ms), trace);
+  for (std::size_t i = 0; i < lat_steps_.size(); ++i) {
+    lat_steps_[i] = std::make_unique<platform::LatencyRecorder>(
+        frontend::to_string(static_cast<frontend::TrackStep>(i)), 0, trace);
+  }
+  lat_keyframe_ = std::make_unique<platform::LatencyRecorder>("keyframe", 0, trace);
   Status s = output_.open(output_dir, config_.output);
   if (!s.is_ok()) return s;
   if (b.lock_memory) {
@@ -165,10 +183,35 @@ Status Pipeline::run() {
 
 void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.wall_time_s = static_cast<double>(platform::monotonic_now_ns() - t_start_ns) * kNsToS;
-  stats_.pose_source = tracker_->pose_source();
+  stats_.pose_source = "tracking";
   stats_.latency = {summarize(*lat_capture_), summarize(*lat_tracking_), summarize(*lat_output_),
-                    summarize(*lat_end_to_end_)};
+                    summarize(*lat_end_to_end_), summarize(*lat_keyframe_)};
+  stats_.tracking_steps.clear();
+  for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
+  stats_.keyframes = map_->num_keyframes();
+  stats_.map_points = map_->num_points();
+  stats_.tracker = tracker_->counters();
+  stats_.focal = tracker_->focal();
+  stats_.mapping = builder_->totals();
+  stats_.backend = ba_->totals();
+  stats_.depth_backend = std::string(builder_->backend_name());
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
+}
+
+void Pipeline::create_keyframe(const map::KeyframeJob& job) {
+  const std::int64_t t_kf = platform::monotonic_now_ns();
+  const depth::KeyframeBuildReport rep = builder_->spin_once(job);
+  if (rep.ok) (void)ba_->spin_once(rep.keyframe, job.K);
+  lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
+}
+
+void Pipeline::count_result(const frontend::TrackingResult& r) {
+  ++stats_.frames_processed;
+  if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
+  if (r.steady) ++stats_.steady_frames;
+  for (std::size_t i = 0; i < lat_steps_.size(); ++i) {
+    if (r.steady) lat_steps_[i]->record(r.seq, r.t_ns, r.step_ns[i]);
+  }
 }
 
 // ---- Lockstep ------------------------------------------------------------------------
@@ -227,11 +270,15 @@ Status Pipeline::run_lockstep() {
     r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)] = t_done - t_trk;
     lat_tracking_->record(r.seq, t_trk, t_done - t_trk);
     lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
-    frame.reset();
-    ++stats_.frames_processed;
-    if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
-    if (r.is_keyframe) ++stats_.keyframes;
     const std::uint64_t trk_delta = trk_allocs.delta();
+    count_result(r);
+    // keyframe creation (inline in lockstep: deterministic)
+    if (r.keyframe_job) {
+      map::KeyframeJob& job = jobs_[0];
+      tracker_->fill_keyframe_job(*frame, job);
+      create_keyframe(job);
+    }
+    frame.reset();
 
     // output
     AllocScope out_allocs;
@@ -240,8 +287,12 @@ Status Pipeline::run_lockstep() {
     if (steady) {
       allocs_capture_.allocations += cap_delta;
       ++allocs_capture_.frames;
+    }
+    if (steady && r.steady) {
       allocs_tracking_.allocations += trk_delta;
       ++allocs_tracking_.frames;
+    }
+    if (steady) {
       allocs_output_.allocations += out_allocs.delta();
       ++allocs_output_.frames;
     }
@@ -264,6 +315,10 @@ Status Pipeline::run_threaded() {
       std::make_unique<platform::SpscRing<frontend::TrackingResult, kResultRingSize>>();
   platform::Notifier capture_wake;
   platform::Notifier result_wake;
+  auto job_ring = std::make_unique<platform::SpscRing<std::uint32_t, 2 * kKeyframeJobs>>();
+  auto free_ring = std::make_unique<platform::SpscRing<std::uint32_t, 2 * kKeyframeJobs>>();
+  for (std::uint32_t i = 0; i < kKeyframeJobs; ++i) (void)free_ring->try_push(i);
+  platform::Notifier job_wake;
   std::atomic<bool> capture_done{false};
   std::atomic<bool> tracking_done{false};
   Status capture_status;
@@ -342,23 +397,43 @@ Status Pipeline::run_threaded() {
           r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)] = t_done - t_trk;
           lat_tracking_->record(r.seq, t_trk, t_done - t_trk);
           lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
+          const std::uint64_t trk_delta = allocs.delta();
+          count_result(r);
+          if (r.keyframe_job) {
+            std::uint32_t slot = 0;
+            if (free_ring->try_pop(slot)) {
+              tracker_->fill_keyframe_job(*frame, jobs_[slot]);
+              (void)job_ring->try_push(slot);  // cannot be full: slots are fewer than its size
+              job_wake.notify();
+            } else {
+              tracker_->keyframe_not_queued();
+              ++stats_.keyframes_deferred;
+            }
+          }
           frame.reset();
-          ++stats_.frames_processed;
-          if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
-          if (r.is_keyframe) ++stats_.keyframes;
           if (!result_ring->try_push(r)) {
             ++stats_.output_overflows;
             MER_LOG_WARN("output ring full: result of frame %llu not written",
                          static_cast<unsigned long long>(r.seq));
           }
           result_wake.notify();
-          if (++tracked_frames > warmup) {
-            allocs_tracking_.allocations += allocs.delta();
+          if (++tracked_frames > warmup && r.steady) {
+            allocs_tracking_.allocations += trk_delta;
             ++allocs_tracking_.frames;
           }
         });
     tracking_done.store(true, std::memory_order_release);
     result_wake.notify_all();
+    job_wake.notify_all();
+  };
+
+  auto depth_body = [&] {
+    consume_loop<std::uint32_t>(
+        job_wake, tracking_done, [&](std::uint32_t& slot) { return job_ring->try_pop(slot); },
+        [&](std::uint32_t& slot) {
+          create_keyframe(jobs_[slot]);
+          (void)free_ring->try_push(slot);
+        });
   };
 
   std::uint64_t written_frames = 0;
@@ -381,10 +456,12 @@ Status Pipeline::run_threaded() {
   };
 
   platform::RtThread output_thread;
+  platform::RtThread depth_thread;
   platform::RtThread tracking_thread;
   platform::RtThread capture_thread;
   // Start consumers first so the capture ring is drained from the first frame.
   const bool ok = output_thread.start(threads.output, output_body) &&
+                  depth_thread.start(threads.depth, depth_body) &&
                   tracking_thread.start(threads.tracking, tracking_body) &&
                   capture_thread.start(threads.capture, capture_body);
   if (!ok) {
@@ -392,16 +469,19 @@ Status Pipeline::run_threaded() {
     capture_wake.notify_all();
     tracking_done.store(true);
     result_wake.notify_all();
+    job_wake.notify_all();
   }
   capture_thread.join();
   tracking_thread.join();
+  depth_thread.join();
   output_thread.join();
   if (!ok) return runtime_error("pipeline: could not start the stage threads");
 
   const std::pair<const platform::ThreadSpec*, const platform::RtThread*> placed[] = {
       {&threads.capture, &capture_thread},
       {&threads.tracking, &tracking_thread},
-      {&threads.output, &output_thread}};
+      {&threads.output, &output_thread},
+      {&threads.depth, &depth_thread}};
   for (const auto& [spec, t] : placed) {
     stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
                                              t->report().fully_applied(), t->report().warning});

@@ -13,15 +13,21 @@
 /// fixed order (capture -> tracking -> output), with a lockstep clock set to each frame's
 /// timestamp: the same input gives bit-identical trajectory/keyframes/frames files.
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "backend/local_ba.h"
 #include "core/status.h"
-#include "frontend/placeholder_tracker.h"
+#include "depth/depth_options.h"
+#include "depth/keyframe_builder.h"
+#include "frontend/tracker.h"
 #include "hal/camera.h"
+#include "map/keyframe_job.h"
+#include "map/map.h"
 #include "pipeline/output_stage.h"
 #include "pipeline/pipeline_options.h"
 #include "platform/latency_recorder.h"
@@ -34,6 +40,8 @@ namespace mer::pipeline {
 inline constexpr std::size_t kCaptureRingSize = 4;
 /// Tracking results buffered for the output thread.
 inline constexpr std::size_t kResultRingSize = 256;
+/// Keyframe jobs in flight between tracking and keyframe creation.
+inline constexpr std::size_t kKeyframeJobs = 8;
 
 /// Everything the pipeline needs from the configuration.
 struct PipelineConfig {
@@ -42,6 +50,10 @@ struct PipelineConfig {
   TelemetryOptions telemetry;
   OutputOptions output;
   frontend::TrackingOptions tracking;
+  map::MapOptions map;
+  depth::DepthOptions depth;
+  backend::LocalBaOptions backend;
+  hal::CameraIntrinsics intrinsics;  ///< calibration in use (source's, or the override)
 };
 
 /// Latency of one stage, summarized.
@@ -76,18 +88,26 @@ struct ThreadPlacement {
 
 /// Counters and summaries of one run.
 struct PipelineStats {
-  std::uint64_t frames_in = 0;         ///< frames delivered by the source
-  std::uint64_t frames_processed = 0;  ///< frames tracking ran on
-  std::uint64_t frames_dropped = 0;    ///< frames evicted from the capture ring (threaded)
-  std::uint64_t frames_lost = 0;       ///< processed frames without a pose
-  std::uint64_t keyframes = 0;
-  std::uint64_t map_points = 0;
-  std::uint64_t pool_exhausted = 0;    ///< acquire found every frame buffer in use
-  std::uint64_t output_overflows = 0;  ///< results lost because the output ring was full
+  std::uint64_t frames_in = 0;               ///< frames delivered by the source
+  std::uint64_t frames_processed = 0;        ///< frames tracking ran on
+  std::uint64_t frames_dropped = 0;          ///< frames evicted from the capture ring (threaded)
+  std::uint64_t frames_lost = 0;             ///< processed frames without a pose
+  std::uint64_t keyframes = 0;               ///< keyframes in the map at the end
+  std::uint64_t keyframes_deferred = 0;      ///< keyframe decisions retried: every job slot busy
+  std::uint64_t map_points = 0;              ///< map-points at the end
+  std::uint64_t steady_frames = 0;           ///< frames tracked against an existing map
+  frontend::TrackerCounters tracker;         ///< tracking counters
+  frontend::FocalReport focal;               ///< focal length used / estimated
+  depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
+  backend::LocalBaTotals backend;            ///< local bundle adjustment totals
+  std::string depth_backend;                 ///< depth inference backend in use
+  std::vector<StageLatency> tracking_steps;  ///< tracking breakdown (extract, query, ...)
+  std::uint64_t pool_exhausted = 0;          ///< acquire found every frame buffer in use
+  std::uint64_t output_overflows = 0;        ///< results lost because the output ring was full
   std::uint64_t acquire_timeouts = 0;
   double wall_time_s = 0.0;
   std::string mode;            ///< "lockstep" or "threaded"
-  std::string pose_source;     ///< where poses come from (placeholder tracking)
+  std::string pose_source;     ///< where poses come from ("tracking")
   std::string end_reason;      ///< end_of_stream, max_frames, signal, source_error
   hal::SourceCounters source;  ///< what the source dropped or survived
   std::vector<StageLatency> latency;
@@ -124,7 +144,19 @@ class Pipeline {
   PipelineConfig config_;
   hal::CameraSource& camera_;
   const std::atomic<bool>& stop_;
-  std::unique_ptr<frontend::PlaceholderTracker> tracker_;
+  void queue_or_build_keyframe(const hal::Frame& frame, const frontend::TrackingResult& r);
+  void count_result(const frontend::TrackingResult& r);
+
+  std::unique_ptr<map::Map> map_;
+  std::unique_ptr<frontend::Tracker> tracker_;
+  std::unique_ptr<depth::KeyframeBuilder> builder_;
+  std::unique_ptr<backend::LocalBundleAdjuster> ba_;
+  void create_keyframe(const map::KeyframeJob& job);
+  std::vector<map::KeyframeJob> jobs_;
+  std::array<std::unique_ptr<platform::LatencyRecorder>,
+             static_cast<std::size_t>(frontend::TrackStep::kCount)>
+      lat_steps_;
+  std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;
   OutputStage output_;
   std::unique_ptr<platform::LatencyRecorder> lat_capture_;
   std::unique_ptr<platform::LatencyRecorder> lat_tracking_;

@@ -43,7 +43,10 @@ RunResult run_threaded(const std::string& name, int frames, double fps, int busy
   EXPECT_TRUE(cam.open(8).is_ok());
   PipelineConfig pc;
   pc.tracking.busy_work_us = busy_us;
-  pc.tracking.min_features = 0;
+  pc.tracking.extractor.num_levels = 3;  // 160x120: a small pyramid
+  pc.tracking.extractor.num_features = 300;
+  pc.map.max_keyframes = 64;
+  pc.map.max_points = 20000;
   // A busy-waiting tracker must not monopolize a core of a shared 2-core test machine.
   if (busy_us > 0) pc.board.tracking_priority = 0;
   std::atomic<bool> stop{false};
@@ -85,7 +88,7 @@ TEST(PipelineThreaded, CameraRateRunAccountsForEveryFrame) {
   EXPECT_EQ(r.stats.frames_processed + r.stats.frames_dropped, 60U);
   EXPECT_EQ(r.seqs.size(), r.stats.frames_processed);
   EXPECT_EQ(r.pool_available, r.pool_capacity);
-  ASSERT_EQ(r.stats.threads.size(), 3U);
+  ASSERT_EQ(r.stats.threads.size(), 4U);  // capture, tracking, output, depth
 }
 
 }  // namespace

@@ -41,8 +41,10 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
   const auto a = fresh_dir("mer_e2e_lockstep_a");
   const auto b = fresh_dir("mer_e2e_lockstep_b");
   for (const auto& d : {a, b}) {
-    const auto r = run_command(quote(kExe) + " --lockstep --max-frames 120 --quiet --output " +
-                               quote(d.string()));
+    // RGB-D: tracked from the first frame (monocular start-up is tested on its own below).
+    const auto r =
+        run_command(quote(kExe) + " --lockstep --mode rgbd --max-frames 120 --quiet --output " +
+                    quote(d.string()));
     ASSERT_EQ(r.exit_code, 0) << r.output;
   }
   for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv"}) {
@@ -62,7 +64,8 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
 
 TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
   const auto d = fresh_dir("mer_e2e_threaded");
-  const auto r = run_command(quote(kExe) + " --max-frames 60 --output " + quote(d.string()));
+  const auto r =
+      run_command(quote(kExe) + " --mode rgbd --max-frames 60 --output " + quote(d.string()));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("p50"), std::string::npos) << r.output;
   cv::FileStorage s = open_summary(d);

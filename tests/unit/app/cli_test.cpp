@@ -101,10 +101,10 @@ TEST(CliBinary, UnknownFlagExits2AndNamesIt) {
 
 TEST(CliBinary, MissingConfigValueExits2AndNamesTheKey) {
   const auto dir = temp_dir("mer_cli_missing");
-  const std::string cfg = write_config(dir, "tracking:\n  fast:\n    threshold:\n");
+  const std::string cfg = write_config(dir, "tracking:\n  extractor:\n    fast_threshold:\n");
   const auto r = run_command(quote(kExe) + " --config " + quote(cfg) + " --max-frames 1");
   EXPECT_EQ(r.exit_code, 2) << r.output;
-  EXPECT_NE(r.output.find("tracking.fast.threshold"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("tracking.extractor.fast_threshold"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find(cfg), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("found nothing"), std::string::npos) << r.output;
 }

@@ -129,7 +129,7 @@ TEST(Options, ValidatorCatchesProgrammaticValues) {
 // The printed configuration is valid YAML that loads back to the same values.
 TEST(Options, PrintedSlamConfigRoundTrips) {
   app::SlamConfig a;
-  a.tracking.fast.threshold = 33;
+  a.tracking.extractor.fast_threshold = 33;
   a.pipeline.mode = "rgbd";
   a.camera.synthetic.noise_sigma = 1.25;
   a.board.lock_memory = true;
@@ -141,7 +141,7 @@ TEST(Options, PrintedSlamConfigRoundTrips) {
   std::ostringstream os2;
   options::print(b, os2);
   EXPECT_EQ(os.str(), os2.str());
-  EXPECT_EQ(b.tracking.fast.threshold, 33);
+  EXPECT_EQ(b.tracking.extractor.fast_threshold, 33);
   EXPECT_EQ(b.pipeline.mode, "rgbd");
   EXPECT_DOUBLE_EQ(b.camera.synthetic.noise_sigma, 1.25);
   EXPECT_TRUE(b.board.lock_memory);

@@ -1,0 +1,218 @@
+#include "backend/local_ba.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <unordered_map>
+
+#include <ceres/ceres.h>
+#include <ceres/rotation.h>
+
+namespace mer::backend {
+namespace {
+
+constexpr std::size_t kMaxCovisibleRead = 128;    // covisible neighbours read per keyframe
+constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
+constexpr double kMsPerS = 1000.0;
+
+/// Reprojection residual of a world point in a camera with pose q_c_w (x, y, z, w), t_c_w,
+/// divided by the keypoint sigma.
+struct ReprojectionCost {
+  ReprojectionCost(double u_px, double v_px, double inv_sigma_px, const geometry::Pinhole& cam)
+      : u(u_px), v(v_px), inv_sigma(inv_sigma_px), K(cam) {}
+
+  template <typename T>
+  bool operator()(const T* q, const T* t, const T* X, T* r) const {
+    const Eigen::Quaternion<T> quat(q[3], q[0], q[1], q[2]);
+    const Eigen::Matrix<T, 3, 1> p =
+        quat * Eigen::Matrix<T, 3, 1>(X[0], X[1], X[2]) + Eigen::Matrix<T, 3, 1>(t[0], t[1], t[2]);
+    if (p[2] <= T(0)) return false;
+    r[0] = (T(K.fx) * p[0] / p[2] + T(K.cx) - T(u)) * T(inv_sigma);
+    r[1] = (T(K.fy) * p[1] / p[2] + T(K.cy) - T(v)) * T(inv_sigma);
+    return true;
+  }
+
+  double u;          ///< observed column, px
+  double v;          ///< observed row, px
+  double inv_sigma;  ///< 1 / keypoint sigma, 1/px
+  geometry::Pinhole K;
+};
+
+struct PoseBlock {
+  std::array<double, 4> q{};  // x, y, z, w (Eigen storage order)
+  std::array<double, 3> t{};
+  bool fixed = false;
+};
+
+struct Observation {
+  map::KeyframeId kf;
+  map::PointId p;
+  ceres::ResidualBlockId id;
+};
+
+}  // namespace
+
+LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map,
+                                         std::vector<float> level_sigma2, bool deterministic)
+    : opts_(opts),
+      map_(map),
+      level_sigma2_(std::move(level_sigma2)),
+      deterministic_(deterministic) {}
+
+LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
+  LocalBaReport rep;
+  if (!opts_.enabled) return rep;
+  const auto t0 = std::chrono::steady_clock::now();
+
+  // 1. Window: the new keyframe and its most covisible neighbours.
+  std::vector<map::CovisibleKeyframe> covis(kMaxCovisibleRead);
+  const std::size_t nc = map_.covisible_keyframes(kf, covis);
+  std::vector<map::KeyframeId> window{kf};
+  for (std::size_t i = 0; i < nc && static_cast<int>(window.size()) < opts_.window_keyframes; ++i) {
+    window.push_back(covis[i].id);
+  }
+  std::unordered_map<map::KeyframeId, PoseBlock> poses;
+  auto load_pose = [&](map::KeyframeId id, bool fixed) {
+    SE3d T_w_c;
+    if (!map_.keyframe_pose(id, T_w_c)) return false;
+    const SE3d T_c_w = T_w_c.inverse();
+    PoseBlock b;
+    const Eigen::Quaterniond q(T_c_w.linear());
+    b.q = {q.x(), q.y(), q.z(), q.w()};
+    b.t = {T_c_w.translation().x(), T_c_w.translation().y(), T_c_w.translation().z()};
+    b.fixed = fixed;
+    poses.emplace(id, b);
+    return true;
+  };
+  for (const map::KeyframeId id : window) (void)load_pose(id, false);
+  if (poses.size() < 2) return rep;
+
+  // 2. Points seen by the window, and the keyframes outside it that see them.
+  std::unordered_map<map::PointId, std::array<double, 3>> points;
+  std::unordered_map<map::KeyframeId, int> outside;  // keyframe -> shared points
+  std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(kMaxObservationsRead);
+  for (const map::KeyframeId id : window) {
+    const auto n = static_cast<std::uint32_t>(map_.keyframe_keypoints(id).size());
+    for (std::uint32_t k = 0; k < n; ++k) {
+      const map::PointId p = map_.keyframe_point(id, k);
+      if (p == map::kNoId || points.count(p) != 0) continue;
+      map::PointView pv;
+      if (!map_.read_point(p, pv)) continue;
+      points.emplace(p, std::array<double, 3>{pv.p_w.x(), pv.p_w.y(), pv.p_w.z()});
+      const std::size_t no = map_.point_observations(p, obs);
+      for (std::size_t o = 0; o < no; ++o) {
+        if (poses.count(obs[o].first) == 0) ++outside[obs[o].first];
+      }
+    }
+  }
+  std::vector<std::pair<map::KeyframeId, int>> fixed_list(outside.begin(), outside.end());
+  std::sort(fixed_list.begin(), fixed_list.end(), [](const auto& a, const auto& b) {
+    return a.second != b.second ? a.second > b.second : a.first < b.first;
+  });
+  for (const auto& [id, count] : fixed_list) {
+    if (rep.fixed_keyframes >= opts_.max_fixed_keyframes) break;
+    if (load_pose(id, true)) ++rep.fixed_keyframes;
+  }
+  // Gauge: without a fixed keyframe, hold the oldest window keyframe.
+  if (rep.fixed_keyframes == 0) {
+    map::KeyframeId oldest = window.front();
+    for (const map::KeyframeId id : window) oldest = std::min(oldest, id);
+    poses[oldest].fixed = true;
+  }
+
+  // 3. Problem.
+  ceres::Problem::Options popts;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(popts);
+  ceres::EigenQuaternionManifold quat_manifold;
+  ceres::HuberLoss huber(opts_.huber_sigmas);
+  std::vector<Observation> residuals;
+  for (auto& [p, X] : points) {
+    const std::size_t no = map_.point_observations(p, obs);
+    for (std::size_t o = 0; o < no; ++o) {
+      auto it = poses.find(obs[o].first);
+      if (it == poses.end()) continue;
+      const auto kps = map_.keyframe_keypoints(obs[o].first);
+      if (obs[o].second >= kps.size()) continue;
+      const features::Keypoint& kp = kps[obs[o].second];
+      const auto level = static_cast<std::size_t>(
+          std::clamp<int>(kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
+      const double inv_sigma = 1.0 / std::sqrt(static_cast<double>(level_sigma2_[level]));
+      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionCost, 2, 4, 3, 3>(
+          new ReprojectionCost(kp.x, kp.y, inv_sigma, K));
+      PoseBlock& b = it->second;
+      const ceres::ResidualBlockId rid =
+          problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
+      residuals.push_back({obs[o].first, p, rid});
+    }
+  }
+  for (auto& [id, b] : poses) {
+    if (!problem.HasParameterBlock(b.q.data())) continue;
+    problem.SetManifold(b.q.data(), &quat_manifold);
+    if (b.fixed) {
+      problem.SetParameterBlockConstant(b.q.data());
+      problem.SetParameterBlockConstant(b.t.data());
+    }
+  }
+  rep.keyframes = static_cast<int>(window.size());
+  rep.points = static_cast<int>(points.size());
+  rep.observations = static_cast<int>(residuals.size());
+  if (residuals.empty()) return rep;
+
+  ceres::Solver::Options sopts;
+  sopts.linear_solver_type = ceres::SPARSE_SCHUR;
+  sopts.max_num_iterations = opts_.max_iterations;
+  if (!deterministic_) sopts.max_solver_time_in_seconds = opts_.max_time_ms / kMsPerS;
+  sopts.num_threads = 1;
+  sopts.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(sopts, &problem, &summary);
+  rep.initial_cost = summary.initial_cost;
+
+  // 4. Outliers out, solve again.
+  std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
+  for (const Observation& o : residuals) {
+    double cost = 0.0;
+    if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) ||
+        2.0 * cost > opts_.outlier_chi2) {
+      problem.RemoveResidualBlock(o.id);
+      ++point_obs[o.p].second;
+      ++rep.outliers;
+    } else {
+      ++point_obs[o.p].first;
+    }
+  }
+  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0) ceres::Solve(sopts, &problem, &summary);
+  rep.final_cost = summary.final_cost;
+
+  // 5. Write back.
+  for (const auto& [id, b] : poses) {
+    if (b.fixed || !problem.HasParameterBlock(b.q.data())) continue;
+    SE3d T_c_w = SE3d::Identity();
+    T_c_w.linear() =
+        Eigen::Quaterniond(b.q[3], b.q[0], b.q[1], b.q[2]).normalized().toRotationMatrix();
+    T_c_w.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
+    map_.set_keyframe_pose(id, T_c_w.inverse());
+  }
+  for (const auto& [p, X] : points) {
+    const auto c = point_obs[p];
+    if (c.first < opts_.min_inlier_observations && c.second > 0) {
+      map_.set_point_bad(p);
+      ++rep.culled_points;
+      continue;
+    }
+    if (c.first > 0) map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+  }
+  rep.ran = true;
+  rep.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ++totals_.runs;
+  totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
+  totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
+  totals_.total_ms += rep.ms;
+  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
+  return rep;
+}
+
+}  // namespace mer::backend

@@ -1,0 +1,80 @@
+#pragma once
+/// @file depth_inference.h
+/// The depth-inference interface: given a new keyframe (image, pose, keypoints) and a few
+/// other views with their poses, produce depth and a confidence at the keyframe's keypoints
+/// (optionally a dense map). Backends:
+/// - `triangulation` (monocular default): keypoints matched along epipolar lines in the
+///   neighbouring keyframes and triangulated with the map's poses (depth in map units);
+/// - `rgbd`: the sensor's depth at the keypoints (metres);
+/// - later: dense plane-sweep stereo, or a learned model, or depth maps recorded offline.
+/// A backend only sees this request; the keyframe-creation stage aligns the scale and turns
+/// local 3D points into map-points, so a new backend never touches the front end.
+
+#include <cstdint>
+#include <span>
+#include <string_view>
+
+#include <opencv2/core/mat.hpp>
+
+#include "core/pose.h"
+#include "core/status.h"
+#include "features/keypoint.h"
+#include "geometry/camera_model.h"
+
+namespace mer::depth {
+
+/// In which unit a backend's depth comes out.
+enum class DepthScale : std::uint8_t {
+  kMap,      ///< already in map units (computed from map poses)
+  kMetric,   ///< metres (a depth sensor)
+  kUnknown,  ///< up to an unknown scale (a monocular network): always aligned to the map
+};
+
+/// Another view of the scene with its pose (a neighbouring keyframe).
+struct DepthView {
+  std::uint32_t id = 0;           ///< keyframe id
+  SE3d T_w_c = SE3d::Identity();  ///< camera-to-world
+  std::span<const features::Keypoint> keypoints;
+  std::span<const features::Descriptor> descriptors;
+  std::span<const std::uint32_t> point_ids;  ///< associated map point per keypoint (or none)
+  const cv::Mat* gray = nullptr;             ///< image, when the backend needs pixels
+};
+
+/// The keyframe whose depth is wanted, and its neighbours.
+struct DepthRequest {
+  SE3d T_w_c = SE3d::Identity();  ///< keyframe camera-to-world
+  geometry::Pinhole K;
+  std::span<const features::Keypoint> keypoints;
+  std::span<const features::Descriptor> descriptors;
+  std::span<const std::uint32_t> point_ids;  ///< keypoints already associated to map points
+  std::span<const float> sensor_depth;       ///< sensor depth per keypoint (empty: none)
+  std::span<const float> level_sigma2;       ///< keypoint noise variance per pyramid level
+  const cv::Mat* gray = nullptr;             ///< keyframe image
+  std::span<const DepthView> views;          ///< neighbours, most relevant first
+};
+
+/// Output buffers, sized by the caller for the request's keypoints.
+struct DepthResult {
+  std::span<float> depth;                     ///< camera z per keypoint (0 = unknown)
+  std::span<float> confidence;                ///< [0, 1] per keypoint
+  std::span<std::uint32_t> support_view;      ///< index into views of the matched view, or ~0
+  std::span<std::uint32_t> support_keypoint;  ///< keypoint index in that view, or ~0
+  int num_valid = 0;                          ///< keypoints that got a depth
+};
+
+/// No supporting view.
+inline constexpr std::uint32_t kNoSupport = 0xFFFFFFFFu;
+
+/// A depth-inference backend. Called on the keyframe-creation thread (low priority).
+class DepthInference {
+ public:
+  virtual ~DepthInference() = default;
+  /// Backend name (config value).
+  virtual std::string_view name() const = 0;
+  /// Unit of the produced depth.
+  virtual DepthScale scale() const = 0;
+  /// Fills `out` for `req`. An error is a failure of this keyframe only.
+  virtual Status infer(const DepthRequest& req, DepthResult& out) = 0;
+};
+
+}  // namespace mer::depth

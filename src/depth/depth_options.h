@@ -1,0 +1,86 @@
+#pragma once
+/// @file depth_options.h
+/// Options of keyframe creation and depth inference (config section `depth`).
+
+#include <array>
+#include <string>
+#include <string_view>
+
+#include "core/options.h"
+
+namespace mer::depth {
+
+/// Backends selectable in config.
+inline constexpr std::array<std::string_view, 3> kDepthBackends{"auto", "triangulation", "rgbd"};
+
+/// Options of the `triangulation` backend.
+struct TriangulationOptions {
+  int max_hamming = 50;           ///< largest descriptor distance of an epipolar match
+  double ratio = 0.7;             ///< best / second-best distance ratio of a match
+  double epipolar_sigmas = 2.0;   ///< epipolar band half-width, in keypoint sigmas (chi2-like)
+  double min_parallax_deg = 1.0;  ///< less parallax: no depth (too uncertain)
+  double full_confidence_parallax_deg = 6.0;  ///< parallax giving confidence 1
+  double max_reprojection_sigmas = 2.5;       ///< reprojection error bound in both views, sigmas
+  int max_level_difference = 1;               ///< pyramid levels a match may differ by
+
+  template <class V>
+  void visit(V& v) {
+    v.field("max_hamming", max_hamming, "largest descriptor distance of an epipolar match",
+            options::Range<int>{0, 256});
+    v.field("ratio", ratio, "best / second-best descriptor distance ratio",
+            options::Range<double>{0.0, 1.0});
+    v.field("epipolar_sigmas", epipolar_sigmas, "epipolar band half-width in keypoint sigmas",
+            options::Range<double>{0.1, 20.0});
+    v.field("min_parallax_deg", min_parallax_deg, "less parallax gives no depth, degrees",
+            options::Range<double>{0.0, 90.0});
+    v.field("full_confidence_parallax_deg", full_confidence_parallax_deg,
+            "parallax giving confidence 1, degrees", options::Range<double>{0.01, 90.0});
+    v.field("max_reprojection_sigmas", max_reprojection_sigmas,
+            "reprojection error bound in both views, keypoint sigmas",
+            options::Range<double>{0.1, 20.0});
+    v.field("max_level_difference", max_level_difference,
+            "pyramid levels an epipolar match may differ by", options::Range<int>{0, 16});
+  }
+};
+
+/// Options of the `rgbd` backend.
+struct RgbdDepthOptions {
+  double min_depth_m = 0.1;  ///< closer sensor readings are ignored, m
+  double max_depth_m = 8.0;  ///< farther sensor readings are ignored, m
+
+  template <class V>
+  void visit(V& v) {
+    v.field("min_depth_m", min_depth_m, "closer sensor readings are ignored, m",
+            options::Range<double>{0.0, 1000.0});
+    v.field("max_depth_m", max_depth_m, "farther sensor readings are ignored, m",
+            options::Range<double>{0.0, 1000.0});
+  }
+};
+
+/// Keyframe creation and depth inference.
+struct DepthOptions {
+  std::string backend = "auto";  ///< auto: rgbd in rgbd mode, else triangulation
+  int neighbours = 5;            ///< keyframes depth inference looks at
+  double min_confidence = 0.2;   ///< depth below this confidence makes no map-point
+  int min_scale_samples = 20;    ///< 3D-2D matches needed to align a non-map-scale depth
+  TriangulationOptions triangulation;
+  RgbdDepthOptions rgbd;
+
+  template <class V>
+  void visit(V& v) {
+    v.field("backend", backend, "depth inference: auto (rgbd in rgbd mode, else triangulation)",
+            options::OneOf{kDepthBackends});
+    v.field("neighbours", neighbours, "neighbouring keyframes depth inference uses",
+            options::Range<int>{1, 16});
+    v.field("min_confidence", min_confidence,
+            "keypoint depth below this confidence makes no map-point",
+            options::Range<double>{0.0, 1.0});
+    v.field("min_scale_samples", min_scale_samples,
+            "3D-2D matches needed to scale-align a depth not in map units",
+            options::Range<int>{1, 100000});
+    v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
+    v.section("rgbd", rgbd, "RGB-D passthrough backend");
+  }
+};
+
+}  // namespace mer::depth

@@ -1,0 +1,272 @@
+#include "depth/keyframe_builder.h"
+
+#include <algorithm>
+#include <chrono>
+
+#include "depth/rgbd_depth.h"
+#include "depth/triangulation_depth.h"
+#include "platform/log_ring.h"
+
+namespace mer::depth {
+namespace {
+
+constexpr std::size_t kMaxObservationsRead = 64;  // observations scanned per tracked point
+constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a point refinement
+
+}  // namespace
+
+KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
+                                 std::vector<float> level_sigma2)
+    : opts_(opts), mode_(std::move(mode)), map_(map), level_sigma2_(std::move(level_sigma2)) {}
+
+Status KeyframeBuilder::init() {
+  std::string backend = opts_.backend;
+  if (backend == "auto") backend = mode_ == "rgbd" ? "rgbd" : "triangulation";
+  if (backend == "rgbd") {
+    if (mode_ != "rgbd") {
+      return invalid_argument("key 'depth.backend': 'rgbd' needs pipeline.mode rgbd");
+    }
+    backend_ = std::make_unique<RgbdDepth>(opts_.rgbd);
+  } else {
+    backend_ = std::make_unique<TriangulationDepth>(opts_.triangulation);
+  }
+  const auto n = static_cast<std::size_t>(map_.options().max_keypoints_per_keyframe);
+  depth_.resize(n);
+  confidence_.resize(n);
+  support_view_.resize(n);
+  support_kp_.resize(n);
+  ratios_.reserve(n);
+  touched_.reserve(n * 2);
+  obs_.resize(kMaxObservationsRead);
+  obs_pose_.resize(kMaxObservationsRead);
+  obs_uv_.resize(kMaxObservationsRead);
+  obs_w_.resize(kMaxObservationsRead);
+  neighbour_points_.resize(static_cast<std::size_t>(opts_.neighbours));
+  for (auto& v : neighbour_points_) v.resize(n);
+  views_.reserve(static_cast<std::size_t>(opts_.neighbours));
+  return Status::ok();
+}
+
+void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
+  // Keyframes observing the tracked points, by count; the newest keyframe always qualifies.
+  neighbour_ids_.clear();
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> counts;  // (kf, count), small
+  for (int i = 0; i < job.num_keypoints; ++i) {
+    const std::uint32_t p = job.point_ids[static_cast<std::size_t>(i)];
+    if (p == map::kNoId || map_.point_is_bad(p)) continue;
+    const std::size_t no = map_.point_observations(p, obs_);
+    for (std::size_t o = 0; o < no; ++o) {
+      const std::uint32_t kf = obs_[o].first;
+      auto it =
+          std::find_if(counts.begin(), counts.end(), [kf](const auto& c) { return c.first == kf; });
+      if (it == counts.end()) {
+        counts.emplace_back(kf, 1);
+      } else {
+        ++it->second;
+      }
+    }
+  }
+  std::stable_sort(counts.begin(), counts.end(),
+                   [](const auto& a, const auto& b) { return a.second > b.second; });
+  const std::uint32_t nk = map_.num_keyframes();
+  if (nk > 0) neighbour_ids_.push_back(nk - 1);
+  for (const auto& c : counts) {
+    if (static_cast<int>(neighbour_ids_.size()) >= opts_.neighbours) break;
+    if (c.first != nk - 1) neighbour_ids_.push_back(c.first);
+  }
+}
+
+void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) {
+  const std::size_t no = map_.point_observations(p, obs_);
+  if (no < 2) return;
+  map::PointView pv;
+  if (!map_.read_point(p, pv)) return;
+  Eigen::Vector3d X = pv.p_w;
+  std::size_t used = 0;
+  for (std::size_t o = 0; o < no && used < obs_pose_.size(); ++o) {
+    SE3d T_w_c;
+    if (!map_.keyframe_pose(obs_[o].first, T_w_c)) continue;
+    const auto kps = map_.keyframe_keypoints(obs_[o].first);
+    if (obs_[o].second >= kps.size()) continue;
+    const features::Keypoint& kp = kps[obs_[o].second];
+    obs_pose_[used] = T_w_c.inverse();
+    obs_uv_[used] = Eigen::Vector2d(kp.x, kp.y);
+    obs_w_[used] = 1.0 / level_sigma2_[static_cast<std::size_t>(std::clamp<int>(
+                             kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1))];
+    ++used;
+  }
+  if (used < 2) return;
+  for (int it = 0; it < kPointRefineIterations; ++it) {
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    for (std::size_t o = 0; o < used; ++o) {
+      const Eigen::Vector3d pc = obs_pose_[o] * X;
+      if (pc.z() <= 0.0) return;
+      const double iz = 1.0 / pc.z();
+      const Eigen::Vector2d r = K.project(pc) - obs_uv_[o];
+      Eigen::Matrix<double, 2, 3> J_p;
+      J_p << K.fx * iz, 0.0, -K.fx * pc.x() * iz * iz, 0.0, K.fy * iz, -K.fy * pc.y() * iz * iz;
+      const Eigen::Matrix<double, 2, 3> J = J_p * obs_pose_[o].linear();
+      H += obs_w_[o] * J.transpose() * J;
+      g += obs_w_[o] * J.transpose() * r;
+    }
+    const Eigen::Vector3d dx = H.ldlt().solve(-g);
+    if (!dx.allFinite()) return;
+    X += dx;
+    if (dx.norm() < 1e-9 * (1.0 + X.norm())) break;
+  }
+  // Accept only when every observation agrees.
+  const double bound =
+      opts_.triangulation.max_reprojection_sigmas * opts_.triangulation.max_reprojection_sigmas;
+  for (std::size_t o = 0; o < used; ++o) {
+    const Eigen::Vector3d pc = obs_pose_[o] * X;
+    if (pc.z() <= 0.0) return;
+    if ((K.project(pc) - obs_uv_[o]).squaredNorm() * obs_w_[o] > bound) return;
+  }
+  map_.set_point_position(p, X);
+}
+
+KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
+  const auto t0 = std::chrono::steady_clock::now();
+  KeyframeBuildReport rep;
+  const auto n = static_cast<std::size_t>(job.num_keypoints);
+  const std::span<const features::Keypoint> kps(job.keypoints.data(), n);
+  const std::span<const features::Descriptor> descs(job.descriptors.data(), n);
+  const std::span<const std::uint32_t> ids(job.point_ids.data(), n);
+
+  // 1. Neighbours and depth inference.
+  pick_neighbours(job);
+  views_.clear();
+  for (std::size_t v = 0; v < neighbour_ids_.size(); ++v) {
+    const std::uint32_t kf = neighbour_ids_[v];
+    DepthView view;
+    view.id = kf;
+    if (!map_.keyframe_pose(kf, view.T_w_c)) continue;
+    view.keypoints = map_.keyframe_keypoints(kf);
+    view.descriptors = map_.keyframe_descriptors(kf);
+    std::vector<std::uint32_t>& pts = neighbour_points_[views_.size()];
+    for (std::size_t k = 0; k < view.keypoints.size(); ++k) {
+      pts[k] = map_.keyframe_point(kf, static_cast<std::uint32_t>(k));
+    }
+    view.point_ids = std::span<const std::uint32_t>(pts.data(), view.keypoints.size());
+    views_.push_back(view);
+  }
+  rep.neighbours = static_cast<int>(views_.size());
+  DepthRequest req;
+  req.T_w_c = job.T_w_c;
+  req.K = job.K;
+  req.keypoints = kps;
+  req.descriptors = descs;
+  req.point_ids = ids;
+  if (job.has_sensor_depth) req.sensor_depth = std::span<const float>(job.sensor_depth.data(), n);
+  req.level_sigma2 = level_sigma2_;
+  req.gray = &job.gray;
+  req.views = views_;
+  DepthResult out{std::span<float>(depth_.data(), n), std::span<float>(confidence_.data(), n),
+                  std::span<std::uint32_t>(support_view_.data(), n),
+                  std::span<std::uint32_t>(support_kp_.data(), n)};
+  const Status ds = backend_->infer(req, out);
+  if (!ds.is_ok()) {
+    MER_LOG_WARN("keyframe %llu: depth inference failed: %s",
+                 static_cast<unsigned long long>(job.seq), ds.message().c_str());
+    std::fill_n(depth_.begin(), n, 0.0F);
+    out.num_valid = 0;
+  }
+  rep.depth_valid = out.num_valid;
+  // 2. Scale alignment with the 3D-2D matches: ratio of map depth to inferred depth.
+  const SE3d T_c_w = job.T_w_c.inverse();
+  ratios_.clear();
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ids[i] == map::kNoId || depth_[i] <= 0.0F) continue;
+    map::PointView pv;
+    if (!map_.read_point(ids[i], pv)) continue;
+    const double z = (T_c_w * pv.p_w).z();
+    if (z > 0.0) ratios_.push_back(z / depth_[i]);
+  }
+  rep.scale_samples = static_cast<int>(ratios_.size());
+  if (!ratios_.empty()) {
+    auto mid = ratios_.begin() + static_cast<std::ptrdiff_t>(ratios_.size() / 2);
+    std::nth_element(ratios_.begin(), mid, ratios_.end());
+    rep.scale_ratio = *mid;
+  }
+  // Depth already in map units (triangulation) or metric in an RGB-D (metric) map is kept;
+  // anything else is aligned, and refused without enough samples.
+  const bool needs_alignment = backend_->scale() == DepthScale::kUnknown ||
+                               (backend_->scale() == DepthScale::kMetric && mode_ != "rgbd");
+  if (needs_alignment) {
+    if (rep.scale_samples >= opts_.min_scale_samples) {
+      for (std::size_t i = 0; i < n; ++i) depth_[i] *= static_cast<float>(rep.scale_ratio);
+      rep.scale_applied = true;
+    } else {
+      std::fill_n(depth_.begin(), n, 0.0F);
+    }
+  }
+
+  // 3. Insert the keyframe with its local depth.
+  map::KeyframeInput in;
+  in.seq = job.seq;
+  in.t_ns = job.t_ns;
+  in.T_w_c = job.T_w_c;
+  in.keypoints = kps;
+  in.descriptors = descs;
+  in.depth = std::span<const float>(depth_.data(), n);
+  in.depth_confidence = std::span<const float>(confidence_.data(), n);
+  const Result<map::KeyframeId> added = map_.add_keyframe(in);
+  if (!added.is_ok()) {
+    ++totals_.failures;
+    MER_LOG_WARN("keyframe %llu not created: %s", static_cast<unsigned long long>(job.seq),
+                 added.status().message().c_str());
+    return rep;
+  }
+  const map::KeyframeId kf = added.value();
+  rep.keyframe = kf;
+
+  // 4. 3D-2D edges of the tracked map-points.
+  touched_.clear();
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ids[i] == map::kNoId || map_.point_is_bad(ids[i])) continue;
+    if (map_.add_observation(ids[i], kf, static_cast<std::uint32_t>(i))) {
+      ++rep.tracked_observations;
+      touched_.push_back(ids[i]);
+    }
+  }
+
+  // 5. New map-points from confident local 3D points.
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ids[i] != map::kNoId || depth_[i] <= 0.0F || confidence_[i] < opts_.min_confidence) {
+      continue;
+    }
+    if (map_.keyframe_point(kf, static_cast<std::uint32_t>(i)) != map::kNoId) continue;
+    const Eigen::Vector3d p_c = job.K.unproject({kps[i].x, kps[i].y}) * depth_[i];
+    const Result<map::PointId> p =
+        map_.add_point(job.T_w_c * p_c, kf, static_cast<std::uint32_t>(i));
+    if (!p.is_ok()) break;  // map full: counted by the map, logged once below
+    ++rep.new_points;
+    const std::uint32_t sv = support_view_[i];
+    if (sv != kNoSupport && sv < views_.size()) {
+      (void)map_.add_observation(p.value(), views_[sv].id, support_kp_[i]);
+    }
+    touched_.push_back(p.value());
+  }
+  // Structure refinement: a tracked point seen from a new keyframe gets a wider baseline;
+  // re-estimate its position over all its observations (Gauss-Newton on reprojection error,
+  // poses fixed) so depth errors of young low-parallax points do not persist.
+  for (std::size_t t = 0; t < static_cast<std::size_t>(rep.tracked_observations); ++t) {
+    refine_point(touched_[t], job.K);
+  }
+  for (const std::uint32_t p : touched_) map_.update_point(p);
+  map_.update_covisibility(kf);
+  rep.ok = true;
+
+  const double ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ++totals_.keyframes;
+  totals_.new_points += static_cast<std::uint64_t>(rep.new_points);
+  totals_.observations += static_cast<std::uint64_t>(rep.tracked_observations);
+  totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
+  totals_.total_ms += ms;
+  totals_.max_ms = std::max(totals_.max_ms, ms);
+  return rep;
+}
+
+}  // namespace mer::depth

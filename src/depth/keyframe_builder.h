@@ -1,0 +1,91 @@
+#pragma once
+/// @file keyframe_builder.h
+/// The keyframe-creation stage, `spin_once(KeyframeJob) -> KeyframeBuildReport`: picks the
+/// neighbouring keyframes (those sharing the most tracked points), runs depth inference on
+/// the new keyframe, aligns the depth's scale to the map with the keyframe's 3D-2D matches
+/// (robust median ratio) when the backend is not already in map units, inserts the keyframe,
+/// its observations of tracked map-points (3D-2D edges), new map-points from confident depth
+/// where no map-point is associated (3D-3D local points), and refreshes the covisibility
+/// (keyframe-keyframe edges). It is the map's single writer while it runs.
+/// Runs on its own low-priority thread in threaded mode; tracking never waits for it.
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/status.h"
+#include "depth/depth_inference.h"
+#include "depth/depth_options.h"
+#include "map/keyframe_job.h"
+#include "map/map.h"
+
+namespace mer::depth {
+
+/// What one keyframe creation did.
+struct KeyframeBuildReport {
+  bool ok = false;
+  std::uint32_t keyframe = 0xFFFFFFFFu;  ///< new keyframe id
+  int tracked_observations = 0;          ///< 3D-2D edges from tracked map-points
+  int depth_valid = 0;                   ///< keypoints that got a depth
+  int new_points = 0;                    ///< map-points created
+  int neighbours = 0;                    ///< views given to depth inference
+  int scale_samples = 0;                 ///< 3D-2D matches used for the scale ratio
+  double scale_ratio = 1.0;              ///< map depth / inferred depth (median)
+  bool scale_applied = false;            ///< the ratio was applied to the depth
+};
+
+/// Totals over the run (summary.json `mapping`).
+struct KeyframeBuildTotals {
+  std::uint64_t keyframes = 0;
+  std::uint64_t failures = 0;  ///< jobs that could not be inserted (map full, ...)
+  std::uint64_t new_points = 0;
+  std::uint64_t observations = 0;
+  std::uint64_t depth_valid = 0;
+  double total_ms = 0.0;
+  double max_ms = 0.0;
+};
+
+/// Keyframe creation + depth inference.
+class KeyframeBuilder {
+ public:
+  /// `mode` is "mono" or "rgbd"; `level_sigma2` the keypoint variance per pyramid level.
+  KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
+                  std::vector<float> level_sigma2);
+
+  /// Creates the backend; error when the option names a backend the mode cannot run.
+  Status init();
+
+  /// Creates one keyframe.
+  KeyframeBuildReport spin_once(const map::KeyframeJob& job);
+
+  const KeyframeBuildTotals& totals() const { return totals_; }
+  std::string_view backend_name() const { return backend_ ? backend_->name() : "none"; }
+
+ private:
+  void pick_neighbours(const map::KeyframeJob& job);
+  void refine_point(std::uint32_t p, const geometry::Pinhole& K);
+
+  DepthOptions opts_;
+  std::string mode_;
+  map::Map& map_;
+  std::vector<float> level_sigma2_;
+  std::unique_ptr<DepthInference> backend_;
+  KeyframeBuildTotals totals_;
+  // scratch
+  std::vector<std::uint32_t> neighbour_ids_;
+  std::vector<std::vector<std::uint32_t>> neighbour_points_;
+  std::vector<DepthView> views_;
+  std::vector<float> depth_;
+  std::vector<float> confidence_;
+  std::vector<std::uint32_t> support_view_;
+  std::vector<std::uint32_t> support_kp_;
+  std::vector<double> ratios_;
+  std::vector<std::uint32_t> touched_;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> obs_;
+  std::vector<SE3d> obs_pose_;
+  std::vector<Eigen::Vector2d> obs_uv_;
+  std::vector<double> obs_w_;
+};
+
+}  // namespace mer::depth

@@ -1,0 +1,178 @@
+#include "depth/triangulation_depth.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "geometry/triangulation.h"
+
+namespace mer::depth {
+namespace {
+
+constexpr std::uint32_t kNoPoint = 0xFFFFFFFFu;
+constexpr double kRadToDeg = 57.29577951308232;
+constexpr std::size_t kMaxViews = 16;  // views used (depth.neighbours is at most 16)
+
+bool is_free(std::span<const std::uint32_t> ids, std::size_t i) {
+  return ids.empty() || ids[i] == kNoPoint;
+}
+
+Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
+  Eigen::Matrix3d m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
+}  // namespace
+
+Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
+  const std::size_t n = req.keypoints.size();
+  if (out.depth.size() < n || out.confidence.size() < n || out.support_view.size() < n ||
+      out.support_keypoint.size() < n) {
+    return invalid_argument("triangulation depth: output buffers smaller than the keypoints");
+  }
+  std::fill_n(out.depth.begin(), n, 0.0F);
+  std::fill_n(out.confidence.begin(), n, 0.0F);
+  std::fill_n(out.support_view.begin(), n, kNoSupport);
+  std::fill_n(out.support_keypoint.begin(), n, kNoSupport);
+  out.num_valid = 0;
+  const geometry::Pinhole& K = req.K;
+  const double f = 0.5 * (K.fx + K.fy);
+  const SE3d T_ck_w = req.T_w_c.inverse();
+  const Eigen::Vector3d c_k = req.T_w_c.translation();
+  auto sigma2 = [&](int level) {
+    return req.level_sigma2.empty()
+               ? 1.0
+               : static_cast<double>(req.level_sigma2[static_cast<std::size_t>(
+                     std::clamp<int>(level, 0, static_cast<int>(req.level_sigma2.size()) - 1))]);
+  };
+  const double min_cos_parallax = std::cos(opts_.min_parallax_deg / kRadToDeg);
+
+  // Per view: relative geometry and the epipolar matches of every free keypoint.
+  const std::size_t nv = std::min(req.views.size(), kMaxViews);
+  std::array<SE3d, kMaxViews> T_cj_w;
+  std::array<Eigen::Matrix3d, kMaxViews> E;
+  for (std::size_t vi = 0; vi < nv; ++vi) {
+    T_cj_w[vi] = req.views[vi].T_w_c.inverse();
+    const SE3d T_cj_ck = T_cj_w[vi] * req.T_w_c;
+    E[vi] = skew(T_cj_ck.translation()) * T_cj_ck.linear();  // x_j^T E x_k = 0
+  }
+  match_.assign(n * nv, kNoSupport);
+  for (std::size_t vi = 0; vi < nv; ++vi) {
+    const DepthView& view = req.views[vi];
+    const std::size_t m = view.keypoints.size();
+    if ((view.T_w_c.translation() - c_k).norm() < std::numeric_limits<double>::epsilon()) continue;
+    best_dist_.assign(m, std::numeric_limits<int>::max());
+    best_of_.assign(m, kNoSupport);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!is_free(req.point_ids, i)) continue;
+      const features::Keypoint& kp = req.keypoints[i];
+      const Eigen::Vector3d x_k = K.unproject({kp.x, kp.y});
+      const Eigen::Vector3d l = E[vi] * x_k;  // epipolar line in view j (normalized coords)
+      const double l_norm = std::hypot(l.x(), l.y());
+      if (l_norm < std::numeric_limits<double>::epsilon()) continue;
+      int best = std::numeric_limits<int>::max();
+      int second = std::numeric_limits<int>::max();
+      std::size_t best_j = m;
+      for (std::size_t j = 0; j < m; ++j) {
+        if (!is_free(view.point_ids, j)) continue;
+        const features::Keypoint& kq = view.keypoints[j];
+        if (std::abs(kq.level - kp.level) > opts_.max_level_difference) continue;
+        const Eigen::Vector3d x_j = K.unproject({kq.x, kq.y});
+        const double dist_px = std::abs(l.dot(x_j)) / l_norm * f;
+        if (dist_px > opts_.epipolar_sigmas * std::sqrt(sigma2(kq.level))) continue;
+        const int d = features::hamming(req.descriptors[i], view.descriptors[j]);
+        if (d < best) {
+          second = best;
+          best = d;
+          best_j = j;
+        } else if (d < second) {
+          second = d;
+        }
+      }
+      if (best_j == m || best > opts_.max_hamming) continue;
+      if (second != std::numeric_limits<int>::max() && best > opts_.ratio * second) continue;
+      // One-to-one per view: a keypoint of the view goes to its closest descriptor.
+      if (best_of_[best_j] != kNoSupport) {
+        if (best_dist_[best_j] <= best) continue;
+        match_[best_of_[best_j] * nv + vi] = kNoSupport;
+      }
+      best_of_[best_j] = static_cast<std::uint32_t>(i);
+      best_dist_[best_j] = best;
+      match_[i * nv + vi] = static_cast<std::uint32_t>(best_j);
+    }
+  }
+
+  // Per keypoint: triangulate with the widest-baseline view, then keep every other view
+  // whose match agrees (reprojects within bounds) and re-triangulate over all of them.
+  const double bound = opts_.max_reprojection_sigmas * opts_.max_reprojection_sigmas;
+  std::array<SE3d, kMaxViews + 1> poses;
+  std::array<Eigen::Vector3d, kMaxViews + 1> rays;
+  for (std::size_t i = 0; i < n; ++i) {
+    const features::Keypoint& kp = req.keypoints[i];
+    const Eigen::Vector3d x_k = K.unproject({kp.x, kp.y});
+    std::size_t best_v = nv;
+    double best_cos = 1.0;
+    Eigen::Vector3d X_best = Eigen::Vector3d::Zero();
+    for (std::size_t vi = 0; vi < nv; ++vi) {
+      const std::uint32_t j = match_[i * nv + vi];
+      if (j == kNoSupport) continue;
+      const features::Keypoint& kq = req.views[vi].keypoints[j];
+      Eigen::Vector3d X_w;
+      if (!geometry::triangulate_two_view(T_ck_w, T_cj_w[vi], x_k, K.unproject({kq.x, kq.y}),
+                                          X_w)) {
+        continue;
+      }
+      const Eigen::Vector3d r_k = X_w - c_k;
+      const Eigen::Vector3d r_j = X_w - req.views[vi].T_w_c.translation();
+      const double cos_parallax = r_k.dot(r_j) / (r_k.norm() * r_j.norm());
+      if (cos_parallax < best_cos) {
+        best_cos = cos_parallax;
+        best_v = vi;
+        X_best = X_w;
+      }
+    }
+    if (best_v == nv || best_cos > min_cos_parallax) continue;
+    // Views consistent with X_best.
+    std::size_t nviews = 0;
+    poses[nviews] = T_ck_w;
+    rays[nviews++] = x_k;
+    for (std::size_t vi = 0; vi < nv; ++vi) {
+      const std::uint32_t j = match_[i * nv + vi];
+      if (j == kNoSupport) continue;
+      const features::Keypoint& kq = req.views[vi].keypoints[j];
+      const Eigen::Vector3d p_j = T_cj_w[vi] * X_best;
+      if (p_j.z() <= 0.0) continue;
+      if ((K.project(p_j) - Eigen::Vector2d(kq.x, kq.y)).squaredNorm() > bound * sigma2(kq.level)) {
+        continue;
+      }
+      poses[nviews] = T_cj_w[vi];
+      rays[nviews++] = K.unproject({kq.x, kq.y});
+    }
+    if (nviews < 2) continue;
+    Eigen::Vector3d X_w = X_best;
+    if (nviews > 2 && !geometry::triangulate_multi_view(
+                          std::span<const SE3d>(poses.data(), nviews),
+                          std::span<const Eigen::Vector3d>(rays.data(), nviews), X_w)) {
+      X_w = X_best;
+    }
+    const Eigen::Vector3d p_k = T_ck_w * X_w;
+    if (p_k.z() <= 0.0) continue;
+    if ((K.project(p_k) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > bound * sigma2(kp.level))
+      continue;
+    const double parallax_deg = std::acos(std::clamp(best_cos, -1.0, 1.0)) * kRadToDeg;
+    out.depth[i] = static_cast<float>(p_k.z());
+    // Confidence: parallax of the widest baseline, more if more views agree.
+    const double views_factor = static_cast<double>(nviews - 1) / static_cast<double>(nv);
+    out.confidence[i] =
+        static_cast<float>(std::min(1.0, parallax_deg / opts_.full_confidence_parallax_deg) *
+                           (0.5 + 0.5 * views_factor));
+    out.support_view[i] = static_cast<std::uint32_t>(best_v);
+    out.support_keypoint[i] = match_[i * nv + best_v];
+    ++out.num_valid;
+  }
+  return Status::ok();
+}
+
+}  // namespace mer::depth

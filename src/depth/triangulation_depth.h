@@ -1,0 +1,33 @@
+#pragma once
+/// @file triangulation_depth.h
+/// `triangulation` depth inference (monocular default): every keypoint of the new keyframe
+/// that is not yet a map-point is searched along its epipolar line in the neighbouring
+/// keyframes (descriptor distance + ratio test, levels close, one-to-one per view),
+/// triangulated with the widest-baseline view (the most accurate depth), then re-triangulated
+/// over every view whose match agrees with it. Kept when it lies in front of the cameras,
+/// reprojects within a few sigmas and has enough parallax. Confidence grows with parallax
+/// and with the number of agreeing views. Depth is in map units.
+
+#include <vector>
+
+#include "depth/depth_inference.h"
+#include "depth/depth_options.h"
+
+namespace mer::depth {
+
+/// Epipolar matching + two-view triangulation backend.
+class TriangulationDepth final : public DepthInference {
+ public:
+  explicit TriangulationDepth(const TriangulationOptions& opts) : opts_(opts) {}
+  std::string_view name() const override { return "triangulation"; }
+  DepthScale scale() const override { return DepthScale::kMap; }
+  Status infer(const DepthRequest& req, DepthResult& out) override;
+
+ private:
+  TriangulationOptions opts_;
+  std::vector<std::uint32_t> match_;    // [keypoint * views + view]: matched keypoint or none
+  std::vector<int> best_dist_;          // per keypoint of one view: distance of its match
+  std::vector<std::uint32_t> best_of_;  // per keypoint of one view: the keypoint it went to
+};
+
+}  // namespace mer::depth

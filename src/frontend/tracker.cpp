@@ -1,0 +1,882 @@
+#include "frontend/tracker.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "geometry/self_calibration.h"
+#include "geometry/two_view.h"
+#include "platform/clock.h"
+#include "platform/log_ring.h"
+
+namespace mer::frontend {
+namespace {
+
+constexpr std::uint64_t kFnvOffset = 1469598103934665603ULL;
+constexpr std::uint64_t kFnvPrime = 1099511628211ULL;
+constexpr double kChi2TwoDof95 = 5.991;  // inlier gate of a 2D reprojection error, sigma^2
+constexpr double kRgbdMinDepthM = 0.1;   // RGB-D initialization: valid sensor depth range, m
+constexpr double kRgbdMaxDepthM = 10.0;
+constexpr int kNoMatch = -1;
+constexpr int kMaxRecentKeyframes = 64;    // distinct keyframes Q_T may draw from
+constexpr double kReferenceWidth = 640.0;  // extractor.num_features is meant for this size
+constexpr double kReferenceHeight = 480.0;
+constexpr double kQueryNearFraction = 0.05;  // Q_S near plane, fraction of the median depth
+
+// Re-projects the rotation onto SO(3): products of poses must not accumulate scale/shear.
+SE3d orthonormalized(const SE3d& T) {
+  SE3d out = T;
+  out.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+  return out;
+}
+
+std::int32_t elapsed_ns(std::int64_t t0) {
+  return static_cast<std::int32_t>(std::min<std::int64_t>(
+      platform::monotonic_now_ns() - t0, std::numeric_limits<std::int32_t>::max()));
+}
+
+double median_of(std::vector<double>& v) {
+  if (v.empty()) return 0.0;
+  auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+float sample_depth(const cv::Mat& depth, float x, float y) {
+  if (depth.empty()) return 0.0F;
+  const int u = static_cast<int>(std::lround(x));
+  const int v = static_cast<int>(std::lround(y));
+  if (u < 0 || v < 0 || u >= depth.cols || v >= depth.rows) return 0.0F;
+  const float d = depth.at<float>(v, u);
+  return std::isfinite(d) ? d : 0.0F;
+}
+
+}  // namespace
+
+Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pinhole& K, int width,
+                 int height, std::string mode, bool focal_auto)
+    : opts_(opts),
+      map_(map),
+      K_(K),
+      width_(width),
+      height_(height),
+      mode_(std::move(mode)),
+      policy_(opts.keyframe, width, height) {
+  focal_.estimated = focal_auto;
+  focal_.initial = K.fx;
+  focal_.value = K.fx;
+  focal_.fixed = !focal_auto;
+}
+
+Tracker::~Tracker() = default;
+
+Status Tracker::init() {
+  if (opts_.scale_features_with_area) {
+    const double area_ratio =
+        static_cast<double>(width_) * height_ / (kReferenceWidth * kReferenceHeight);
+    if (area_ratio > 1.0) {
+      const int cap = map_.options().max_keypoints_per_keyframe - opts_.extractor.num_levels;
+      opts_.extractor.num_features =
+          std::min(cap, static_cast<int>(std::lround(opts_.extractor.num_features * area_ratio)));
+      MER_LOG_INFO("%dx%d images: %d features per frame", width_, height_,
+                   opts_.extractor.num_features);
+    }
+  }
+  Result<std::unique_ptr<features::Extractor>> ex =
+      features::make_extractor(opts_.extractor, width_, height_);
+  if (!ex.is_ok()) return ex.status();
+  extractor_ = std::move(ex.value());
+  const int max_kp = max_keypoints();
+  if (max_kp > map_.options().max_keypoints_per_keyframe) {
+    return invalid_argument("key 'tracking.extractor.num_features': " + std::to_string(max_kp) +
+                            " keypoints per frame exceed map.max_keypoints_per_keyframe (" +
+                            std::to_string(map_.options().max_keypoints_per_keyframe) + ")");
+  }
+  const auto nk = static_cast<std::size_t>(max_kp);
+  const auto nq = static_cast<std::size_t>(opts_.max_query_points);
+  pnp_ = std::make_unique<geometry::PnpRansac>(opts_.pnp, nq);
+  grid_cols_ = (width_ + opts_.match.grid_cell_px - 1) / opts_.match.grid_cell_px;
+  grid_rows_ = (height_ + opts_.match.grid_cell_px - 1) / opts_.match.grid_cell_px;
+  grid_start_.assign(static_cast<std::size_t>(grid_cols_ * grid_rows_ + 1), 0);
+  grid_fill_.assign(static_cast<std::size_t>(grid_cols_ * grid_rows_), 0);
+  grid_items_.assign(nk, 0);
+  stamp_.assign(static_cast<std::size_t>(map_.options().max_points), 0);
+  query_buf_.assign(nq, 0);
+  cand_id_.assign(nq, 0);
+  cand_p_w_.assign(nq, Eigen::Vector3d::Zero());
+  cand_desc_.assign(nq, features::Descriptor{});
+  cand_normal_.assign(nq, Eigen::Vector3f::Zero());
+  cand_max_dist_.assign(nq, 0.0F);
+  cand_kf_.assign(nq, 0);
+  cand_match_.assign(nq, kNoMatch);
+  kp_cand_.assign(nk, kNoMatch);
+  kp_dist_.assign(nk, 0);
+  corr_X_.assign(nk, Eigen::Vector3d::Zero());
+  corr_uv_.assign(nk, Eigen::Vector2d::Zero());
+  corr_sigma_.assign(nk, 1.0F);
+  corr_kp_.assign(nk, 0);
+  corr_mask_.assign(nk, 0);
+  inlier_x_.assign(nk, 0.0F);
+  inlier_y_.assign(nk, 0.0F);
+  kp_point_.assign(nk, map::kNoId);
+  recent_.assign(static_cast<std::size_t>(opts_.temporal_frames), KeyframeHistogram{});
+  qt_keyframes_.reserve(kMaxRecentKeyframes);
+  depth_scratch_.reserve(std::max(nk, static_cast<std::size_t>(opts_.focal.max_frames) + 1024));
+  ref_kps_.reserve(nk);
+  ref_descs_.reserve(nk);
+  ref_prev_.reserve(nk);
+  ref_match_.reserve(nk);
+  init_uv0_.reserve(nk);
+  init_uv1_.reserve(nk);
+  init_ref_idx_.reserve(nk);
+  init_cur_idx_.reserve(nk);
+  focal_estimates_.reserve(static_cast<std::size_t>(opts_.focal.max_frames) + 1024);
+  return Status::ok();
+}
+
+int Tracker::max_keypoints() const {
+  // The ORB backends keep at most num_features plus a few ties per level.
+  return opts_.extractor.num_features + opts_.extractor.num_levels;
+}
+
+std::vector<float> Tracker::level_sigma2() const {
+  std::vector<float> s;
+  for (int l = 0; l < extractor_->num_levels(); ++l) s.push_back(extractor_->level_sigma2(l));
+  return s;
+}
+
+double Tracker::sigma2(int level) const {
+  return extractor_->level_sigma2(level);
+}
+
+// ---- Per-frame building blocks --------------------------------------------------------
+
+void Tracker::build_grid() {
+  const int cells = grid_cols_ * grid_rows_;
+  std::fill(grid_start_.begin(), grid_start_.end(), 0);
+  const int cell_px = opts_.match.grid_cell_px;
+  const auto n = std::min(kps_.size(), grid_items_.size());
+  auto cell_of = [&](const features::Keypoint& k) {
+    const int cx = std::clamp(static_cast<int>(k.x) / cell_px, 0, grid_cols_ - 1);
+    const int cy = std::clamp(static_cast<int>(k.y) / cell_px, 0, grid_rows_ - 1);
+    return cy * grid_cols_ + cx;
+  };
+  for (std::size_t i = 0; i < n; ++i) ++grid_start_[static_cast<std::size_t>(cell_of(kps_[i]) + 1)];
+  for (int c = 0; c < cells; ++c) {
+    grid_start_[static_cast<std::size_t>(c + 1)] += grid_start_[static_cast<std::size_t>(c)];
+  }
+  std::copy(grid_start_.begin(), grid_start_.begin() + cells, grid_fill_.begin());
+  for (std::size_t i = 0; i < n; ++i) {
+    const int c = cell_of(kps_[i]);
+    grid_items_[static_cast<std::size_t>(grid_fill_[static_cast<std::size_t>(c)]++)] =
+        static_cast<std::int32_t>(i);
+  }
+}
+
+void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
+  if (++frame_stamp_ == 0) {  // wrapped: forget every stamp
+    std::fill(stamp_.begin(), stamp_.end(), 0);
+    frame_stamp_ = 1;
+  }
+  num_cand_ = 0;
+  const auto cap = static_cast<int>(cand_id_.size());
+  const std::uint32_t num_points = map_.num_points();
+  auto add = [&](std::uint32_t p) {
+    if (p >= num_points || num_cand_ >= cap) return false;
+    if (stamp_[p] == frame_stamp_) return false;
+    stamp_[p] = frame_stamp_;
+    map::PointView pv;
+    if (!map_.read_point(p, pv)) return false;
+    const auto c = static_cast<std::size_t>(num_cand_++);
+    cand_id_[c] = p;
+    cand_p_w_[c] = pv.p_w;
+    cand_desc_[c] = pv.descriptor;
+    cand_normal_[c] = pv.normal;
+    cand_max_dist_[c] = pv.max_distance;
+    cand_kf_[c] = pv.ref_keyframe;
+    cand_match_[c] = kNoMatch;
+    return true;
+  };
+
+  // Q_T: points of the keyframes tracked in the last B frames (and the newest keyframe).
+  qt_keyframes_.clear();
+  const std::uint32_t nk = map_.num_keyframes();
+  if (nk > 0) qt_keyframes_.push_back(nk - 1);
+  for (const KeyframeHistogram& h : recent_) {
+    for (int i = 0; i < h.size(); ++i) {
+      const std::uint32_t kf = h.keyframe(i);
+      if (kf >= nk || static_cast<int>(qt_keyframes_.size()) >= kMaxRecentKeyframes) continue;
+      if (std::find(qt_keyframes_.begin(), qt_keyframes_.end(), kf) == qt_keyframes_.end()) {
+        qt_keyframes_.push_back(kf);
+      }
+    }
+  }
+  int qt = 0;
+  for (const std::uint32_t kf : qt_keyframes_) {
+    const auto n = static_cast<std::uint32_t>(map_.keyframe_keypoints(kf).size());
+    for (std::uint32_t k = 0; k < n; ++k) {
+      const std::uint32_t p = map_.keyframe_point(kf, k);
+      if (p != map::kNoId && add(p)) ++qt;
+    }
+  }
+  // Q_S: points in the cells visible from the predicted pose.
+  const double far = opts_.query_far * median_depth_;
+  const double near = kQueryNearFraction * median_depth_;
+  const std::size_t ns =
+      map_.query_visible(T_c_w.inverse(), K_, width_, height_, near, far, query_buf_);
+  for (std::size_t i = 0; i < ns; ++i) (void)add(query_buf_[i]);
+  r.query_temporal = qt;
+  r.query_spatial = static_cast<std::int32_t>(ns);
+  r.query_total = num_cand_;
+}
+
+int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) {
+  std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
+  const Eigen::Vector3d centre = T_c_w.inverse().translation();
+  const int levels = extractor_->num_levels();
+  const double log_scale =
+      std::log(std::max(1.0001, static_cast<double>(extractor_->level_scale(1))));
+  const int cell_px = opts_.match.grid_cell_px;
+  const int window = tight ? std::max(0, opts_.match.level_window - 1) : opts_.match.level_window;
+  int matches = 0;
+  for (int c = 0; c < num_cand_; ++c) {
+    const auto ci = static_cast<std::size_t>(c);
+    cand_match_[ci] = kNoMatch;
+    const Eigen::Vector3d p_c = T_c_w * cand_p_w_[ci];
+    if (p_c.z() <= 0.0) continue;
+    const Eigen::Vector2d uv = K_.project(p_c);
+    if (uv.x() < 0.0 || uv.y() < 0.0 || uv.x() >= width_ || uv.y() >= height_) continue;
+    const Eigen::Vector3d ray = cand_p_w_[ci] - centre;
+    const double dist = ray.norm();
+    const Eigen::Vector3f& nrm = cand_normal_[ci];
+    if (nrm.squaredNorm() > 0.0F &&
+        ray.dot(nrm.cast<double>()) < opts_.match.min_view_cos * dist * nrm.norm()) {
+      continue;
+    }
+    int pred_level = -1;
+    if (cand_max_dist_[ci] > 0.0F && dist > 0.0) {
+      pred_level =
+          std::clamp(static_cast<int>(std::ceil(std::log(cand_max_dist_[ci] / dist) / log_scale)),
+                     0, levels - 1);
+    }
+    const double r = radius_px * (pred_level >= 0 ? extractor_->level_scale(pred_level) : 1.0F);
+    const int x0 = std::max(0, static_cast<int>((uv.x() - r) / cell_px));
+    const int x1 = std::min(grid_cols_ - 1, static_cast<int>((uv.x() + r) / cell_px));
+    const int y0 = std::max(0, static_cast<int>((uv.y() - r) / cell_px));
+    const int y1 = std::min(grid_rows_ - 1, static_cast<int>((uv.y() + r) / cell_px));
+    int best = std::numeric_limits<int>::max();
+    int second = std::numeric_limits<int>::max();
+    int best_k = kNoMatch;
+    for (int gy = y0; gy <= y1; ++gy) {
+      for (int gx = x0; gx <= x1; ++gx) {
+        const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
+        for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
+          const int k = grid_items_[static_cast<std::size_t>(it)];
+          const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
+          if (pred_level >= 0 && std::abs(kp.level - pred_level) > window) continue;
+          const double dx = kp.x - uv.x();
+          const double dy = kp.y - uv.y();
+          if (dx * dx + dy * dy > r * r) continue;
+          const int d = features::hamming(cand_desc_[ci], descs_[static_cast<std::size_t>(k)]);
+          if (d < best) {
+            second = best;
+            best = d;
+            best_k = k;
+          } else if (d < second) {
+            second = d;
+          }
+        }
+      }
+    }
+    if (best_k == kNoMatch || best > opts_.match.max_hamming) continue;
+    if (second != std::numeric_limits<int>::max() && best > opts_.match.ratio * second) continue;
+    const auto bk = static_cast<std::size_t>(best_k);
+    if (kp_cand_[bk] != kNoMatch) {
+      if (kp_dist_[bk] <= best) continue;
+      cand_match_[static_cast<std::size_t>(kp_cand_[bk])] = kNoMatch;
+      --matches;
+    }
+    kp_cand_[bk] = c;
+    kp_dist_[bk] = best;
+    cand_match_[ci] = best_k;
+    ++matches;
+  }
+  return matches;
+}
+
+int Tracker::collect_correspondences() {
+  int m = 0;
+  const auto cap = static_cast<int>(corr_X_.size());
+  for (int c = 0; c < num_cand_ && m < cap; ++c) {
+    const int k = cand_match_[static_cast<std::size_t>(c)];
+    if (k == kNoMatch) continue;
+    const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
+    const auto mi = static_cast<std::size_t>(m++);
+    corr_X_[mi] = cand_p_w_[static_cast<std::size_t>(c)];
+    corr_uv_[mi] = Eigen::Vector2d(kp.x, kp.y);
+    corr_sigma_[mi] = extractor_->level_scale(kp.level);
+    corr_kp_[mi] = c;  // candidate index
+  }
+  return m;
+}
+
+bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r) {
+  const std::int64_t t_match = platform::monotonic_now_ns();
+  int matches = project_and_match(T_c_w_pred,
+                                  wide ? opts_.match.wide_radius_px : opts_.match.radius_px, false);
+  if (matches < opts_.match.min_matches && !wide) {
+    wide = true;
+    ++counters_.wide_searches;
+    matches = project_and_match(T_c_w_pred, opts_.match.wide_radius_px, false);
+  }
+  int m = collect_correspondences();
+  r.step_ns[static_cast<std::size_t>(TrackStep::kMatch)] = elapsed_ns(t_match);
+  const std::int64_t t_pose = platform::monotonic_now_ns();
+  r.num_matches = m;
+  if (m < opts_.min_inliers) {
+    r.step_ns[static_cast<std::size_t>(TrackStep::kPose)] = elapsed_ns(t_pose);
+    return false;
+  }
+  const auto um = static_cast<std::size_t>(m);
+  geometry::PnpInput in;
+  in.X_w = std::span<const Eigen::Vector3d>(corr_X_.data(), um);
+  in.uv = std::span<const Eigen::Vector2d>(corr_uv_.data(), um);
+  in.sigma = std::span<const float>(corr_sigma_.data(), um);
+  in.K = K_;
+  const bool est_focal = focal_.estimated && !focal_.fixed;
+  const geometry::PnpResult pr =
+      est_focal
+          ? pnp_->solve_with_focal(in, std::span<std::uint8_t>(corr_mask_.data(), um), &T_c_w_pred)
+          : pnp_->solve(in, std::span<std::uint8_t>(corr_mask_.data(), um), &T_c_w_pred);
+  if (!pr.ok || pr.num_inliers < opts_.min_inliers) {
+    r.step_ns[static_cast<std::size_t>(TrackStep::kPose)] = elapsed_ns(t_pose);
+    return false;
+  }
+  SE3d T = pr.T_c_w;
+  if (est_focal) update_focal(pr.focal, r.seq);
+
+  // Second pass: tight search with the estimated pose, then refine on the gated matches.
+  matches = project_and_match(T, opts_.match.refine_radius_px, true);
+  m = collect_correspondences();
+  const auto um2 = static_cast<std::size_t>(m);
+  in.X_w = std::span<const Eigen::Vector3d>(corr_X_.data(), um2);
+  in.uv = std::span<const Eigen::Vector2d>(corr_uv_.data(), um2);
+  in.sigma = std::span<const float>(corr_sigma_.data(), um2);
+  in.K = K_;
+  geometry::RefineOptions ro;
+  ro.iterations = opts_.pnp.refine_iterations;
+  ro.huber_px = opts_.pnp.huber_px;
+  int inliers = 0;
+  SE3d T2 = T;
+  for (int pass = 0; pass < 2; ++pass) {
+    (void)geometry::refine_pose(in,
+                                pass == 0 ? std::span<const std::uint8_t>{}
+                                          : std::span<const std::uint8_t>(corr_mask_.data(), um2),
+                                T2, nullptr, ro);
+    inliers = 0;
+    for (std::size_t i = 0; i < um2; ++i) {
+      const Eigen::Vector3d p_c = T2 * corr_X_[i];
+      const double s2 = static_cast<double>(corr_sigma_[i]) * corr_sigma_[i];
+      const bool ok =
+          p_c.z() > 0.0 && (K_.project(p_c) - corr_uv_[i]).squaredNorm() < kChi2TwoDof95 * s2;
+      corr_mask_[i] = ok ? 1 : 0;
+      inliers += ok ? 1 : 0;
+    }
+  }
+  r.step_ns[static_cast<std::size_t>(TrackStep::kPose)] = elapsed_ns(t_pose);
+  if (inliers < opts_.min_inliers) return false;
+  T2 = orthonormalized(T2);
+  T_c_w_ = T2;
+  r.num_matches = m;
+  r.num_inliers = inliers;
+
+  // Tracked points: per-keypoint association, inlier positions, histogram, median depth.
+  std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
+  histogram_.clear();
+  depth_scratch_.clear();
+  int ni = 0;
+  for (std::size_t i = 0; i < um2; ++i) {
+    if (corr_mask_[i] == 0) continue;
+    const auto c = static_cast<std::size_t>(corr_kp_[i]);
+    const auto k = static_cast<std::size_t>(cand_match_[c]);
+    kp_point_[k] = cand_id_[c];
+    inlier_x_[static_cast<std::size_t>(ni)] = static_cast<float>(corr_uv_[i].x());
+    inlier_y_[static_cast<std::size_t>(ni)] = static_cast<float>(corr_uv_[i].y());
+    ++ni;
+    histogram_.add(cand_kf_[c]);
+    depth_scratch_.push_back((T2 * corr_X_[i]).z());
+  }
+  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  return true;
+}
+
+void Tracker::update_focal(double f, std::uint64_t seq) {
+  if (!(f > 0.0) || !std::isfinite(f)) return;
+  if (focal_estimates_.size() < focal_estimates_.capacity()) focal_estimates_.push_back(f);
+  depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
+  const double med = median_of(depth_scratch_);
+  focal_.estimates = static_cast<int>(focal_estimates_.size());
+  focal_.value = med;
+  focal_stable_count_ =
+      std::abs(f - med) <= opts_.focal.stable_tolerance * med ? focal_stable_count_ + 1 : 0;
+  K_ = K_.with_focal(med);
+  if (focal_stable_count_ >= opts_.focal.stable_frames ||
+      frames_since_init_ >= static_cast<std::uint64_t>(opts_.focal.max_frames)) {
+    focal_.fixed = true;
+    focal_.fixed_at_seq = static_cast<std::int64_t>(seq);
+    MER_LOG_INFO("focal length fixed at %.2f px (frame %llu, %d estimates)", med,
+                 static_cast<unsigned long long>(seq), focal_.estimates);
+  }
+}
+
+void Tracker::fix_focal_at_init(std::uint64_t seq) {
+  if (!focal_.estimated || focal_.fixed || opts_.focal.refine_after_init) return;
+  focal_.fixed = true;
+  focal_.fixed_at_seq = static_cast<std::int64_t>(seq);
+  MER_LOG_INFO("focal length fixed at %.2f px at initialization (%d two-view estimates)",
+               focal_.value, focal_.estimates);
+}
+
+// ---- Tracking -------------------------------------------------------------------------
+
+bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
+  ++frames_since_init_;
+  const SE3d T_c_w_pred = have_pose_ ? SE3d(velocity_ * T_c_w_) : T_c_w_;
+  const SE3d T_c_w_prev = T_c_w_;
+  const std::int64_t t_query = platform::monotonic_now_ns();
+  gather_queries(T_c_w_pred, r);
+  r.step_ns[static_cast<std::size_t>(TrackStep::kQuery)] = elapsed_ns(t_query);
+  bool ok = estimate_pose(T_c_w_pred, poor_prediction_, r);
+  if (!ok && !poor_prediction_) {
+    ++counters_.wide_searches;
+    ok = estimate_pose(T_c_w_pred, true, r);
+  }
+  r.focal = K_.fx;
+  if (!ok) {
+    r.state = TrackState::kLost;
+    ++counters_.lost;
+    poor_prediction_ = true;
+    velocity_ = SE3d::Identity();
+    T_c_w_ = T_c_w_prev;
+    return false;
+  }
+  velocity_ = orthonormalized(T_c_w_ * T_c_w_prev.inverse());
+  have_pose_ = true;
+  poor_prediction_ = false;
+  r.state = TrackState::kTracked;
+  r.steady = true;
+  r.T_w_c = T_c_w_.inverse();
+  last_T_w_c_ = r.T_w_c;
+  ++counters_.tracked;
+  counters_.sum_inliers += static_cast<std::uint64_t>(r.num_inliers);
+  counters_.sum_query_temporal += static_cast<std::uint64_t>(r.query_temporal);
+  counters_.sum_query_spatial += static_cast<std::uint64_t>(r.query_spatial);
+  counters_.sum_query_total += static_cast<std::uint64_t>(r.query_total);
+
+  const std::int64_t t_decide = platform::monotonic_now_ns();
+  KeyframeEvidence e;
+  e.t_ns = frame.t_ns;
+  e.inliers = r.num_inliers;
+  e.inlier_x = std::span<const float>(inlier_x_.data(), static_cast<std::size_t>(r.num_inliers));
+  e.inlier_y = std::span<const float>(inlier_y_.data(), static_cast<std::size_t>(r.num_inliers));
+  e.histogram = &histogram_;
+  KeyframeReason reason = policy_.decide(e);
+  if (force_keyframe_ && reason == KeyframeReason::kNone)
+    reason = static_cast<KeyframeReason>(last_reason_);
+  force_keyframe_ = false;
+  r.kl = static_cast<float>(policy_.last_kl());
+  const bool is_kf = reason != KeyframeReason::kNone;
+  policy_.on_frame(e, is_kf);
+  if (is_kf) {
+    r.is_keyframe = true;
+    r.keyframe_job = true;
+    r.keyframe_reason = static_cast<std::uint8_t>(reason);
+    last_reason_ = r.keyframe_reason;
+    pending_keyframe_ = true;
+    ++counters_.keyframes_decided;
+    ++counters_.keyframe_reasons[static_cast<std::size_t>(reason)];
+    MER_LOG_DEBUG("frame %llu: keyframe (%s, inliers %d, kl %.3f)",
+                  static_cast<unsigned long long>(frame.seq), to_string(reason), r.num_inliers,
+                  policy_.last_kl());
+  }
+  recent_[recent_next_] = histogram_;
+  recent_next_ = (recent_next_ + 1) % recent_.size();
+  r.step_ns[static_cast<std::size_t>(TrackStep::kDecide)] = elapsed_ns(t_decide);
+  return true;
+}
+
+void Tracker::keyframe_not_queued() {
+  force_keyframe_ = true;
+  pending_keyframe_ = false;
+}
+
+void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const {
+  job.seq = frame.seq;
+  job.t_ns = frame.t_ns;
+  job.T_w_c = last_T_w_c_;
+  job.K = K_;
+  job.reason = last_reason_;
+  job.has_ground_truth = frame.has_ground_truth;
+  job.T_w_c_gt = frame.T_w_c_gt;
+  const int n = std::min(static_cast<int>(kps_.size()), job.capacity());
+  job.num_keypoints = n;
+  std::copy_n(kps_.begin(), n, job.keypoints.begin());
+  std::copy_n(descs_.begin(), n, job.descriptors.begin());
+  std::copy_n(kp_point_.begin(), n, job.point_ids.begin());
+  job.has_sensor_depth = !frame.depth.empty();
+  for (int i = 0; i < n && job.has_sensor_depth; ++i) {
+    const auto ui = static_cast<std::size_t>(i);
+    job.sensor_depth[ui] = sample_depth(frame.depth, kps_[ui].x, kps_[ui].y);
+  }
+  if (job.gray.size() == frame.gray.size()) frame.gray.copyTo(job.gray);
+}
+
+// ---- Initialization --------------------------------------------------------------------
+
+void Tracker::set_reference(const hal::Frame& frame) {
+  ref_kps_.assign(kps_.begin(), kps_.end());
+  ref_descs_.assign(descs_.begin(), descs_.end());
+  ref_prev_.clear();
+  for (const auto& k : kps_) ref_prev_.emplace_back(k.x, k.y);
+  ref_valid_ = true;
+  ref_seq_ = frame.seq;
+  ref_t_ns_ = frame.t_ns;
+}
+
+int Tracker::match_reference() {
+  std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
+  ref_match_.assign(ref_kps_.size(), kNoMatch);
+  const int cell_px = opts_.match.grid_cell_px;
+  const double r = opts_.init.search_radius_px;
+  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
+    const Eigen::Vector2d& c = ref_prev_[i];
+    const int x0 = std::max(0, static_cast<int>((c.x() - r) / cell_px));
+    const int x1 = std::min(grid_cols_ - 1, static_cast<int>((c.x() + r) / cell_px));
+    const int y0 = std::max(0, static_cast<int>((c.y() - r) / cell_px));
+    const int y1 = std::min(grid_rows_ - 1, static_cast<int>((c.y() + r) / cell_px));
+    int best = std::numeric_limits<int>::max();
+    int second = std::numeric_limits<int>::max();
+    int best_k = kNoMatch;
+    for (int gy = y0; gy <= y1; ++gy) {
+      for (int gx = x0; gx <= x1; ++gx) {
+        const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
+        for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
+          const int k = grid_items_[static_cast<std::size_t>(it)];
+          const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
+          if (std::abs(kp.level - ref_kps_[i].level) > 1) continue;
+          const double dx = kp.x - c.x();
+          const double dy = kp.y - c.y();
+          if (dx * dx + dy * dy > r * r) continue;
+          const int d = features::hamming(ref_descs_[i], descs_[static_cast<std::size_t>(k)]);
+          if (d < best) {
+            second = best;
+            best = d;
+            best_k = k;
+          } else if (d < second) {
+            second = d;
+          }
+        }
+      }
+    }
+    if (best_k == kNoMatch || best > opts_.init.max_hamming) continue;
+    if (second != std::numeric_limits<int>::max() && best > opts_.init.ratio * second) continue;
+    const auto bk = static_cast<std::size_t>(best_k);
+    if (kp_cand_[bk] != kNoMatch) {
+      if (kp_dist_[bk] <= best) continue;
+      ref_match_[static_cast<std::size_t>(kp_cand_[bk])] = kNoMatch;
+    }
+    kp_cand_[bk] = static_cast<std::int32_t>(i);
+    kp_dist_[bk] = best;
+    ref_match_[i] = best_k;
+  }
+  init_uv0_.clear();
+  init_uv1_.clear();
+  init_ref_idx_.clear();
+  init_cur_idx_.clear();
+  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
+    const int k = ref_match_[i];
+    if (k == kNoMatch) continue;
+    const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
+    init_uv0_.emplace_back(ref_kps_[i].x, ref_kps_[i].y);
+    init_uv1_.emplace_back(kp.x, kp.y);
+    init_ref_idx_.push_back(static_cast<std::int32_t>(i));
+    init_cur_idx_.push_back(k);
+    ref_prev_[i] = Eigen::Vector2d(kp.x, kp.y);
+  }
+  return static_cast<int>(init_uv0_.size());
+}
+
+bool Tracker::focal_from_reference(int matches) {
+  if (matches < opts_.init.two_view.min_matches) return false;
+  depth_scratch_.clear();
+  for (std::size_t i = 0; i < init_uv0_.size(); ++i) {
+    depth_scratch_.push_back((init_uv1_[i] - init_uv0_[i]).norm());
+  }
+  if (median_of(depth_scratch_) < opts_.focal.min_disparity_px) return false;
+  const geometry::FocalEstimate est = geometry::estimate_focal_two_view(
+      init_uv0_, init_uv1_, K_.cx, K_.cy, focal_.initial, opts_.pnp.seed);
+  if (!est.ok) {
+    MER_LOG_DEBUG("focal estimate refused: %.2f px, relative sigma %.4f, %d inliers", est.focal,
+                  est.relative_sigma, est.num_inliers);
+    return false;
+  }
+  focal_estimates_.push_back(est.focal);
+  depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
+  const double med = median_of(depth_scratch_);
+  K_ = K_.with_focal(med);
+  focal_.value = med;
+  focal_.estimates = static_cast<int>(focal_estimates_.size());
+  MER_LOG_INFO("focal estimate %.2f px (median %.2f over %d)", est.focal, med, focal_.estimates);
+  return true;
+}
+
+bool Tracker::reference_too_old(std::int64_t t_ns) const {
+  return static_cast<double>(t_ns - ref_t_ns_) * 1e-9 > opts_.init.max_reference_age_s;
+}
+
+bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
+  if (static_cast<int>(kps_.size()) < opts_.init.min_features) {
+    ref_valid_ = false;
+    return false;
+  }
+  if (!ref_valid_) {
+    set_reference(frame);
+    return false;
+  }
+  const int m = match_reference();
+  if (m < opts_.init.two_view.min_matches) {
+    set_reference(frame);
+    return false;
+  }
+  if (focal_.estimated && focal_.estimates < opts_.focal.min_init_estimates) {
+    (void)focal_from_reference(m);
+    if (focal_.estimates < opts_.focal.min_init_estimates) {
+      if (reference_too_old(frame.t_ns)) set_reference(frame);
+      return false;
+    }
+  }
+  ++counters_.init_attempts;
+  const geometry::TwoViewResult tv =
+      geometry::reconstruct_two_view(init_uv0_, init_uv1_, K_, opts_.init.two_view);
+  if (!tv.ok) {
+    ++counters_.init_refusals;
+    counters_.last_init_refusal = geometry::to_string(tv.refusal);
+    MER_LOG_DEBUG("frame %llu: initialization refused (%s)",
+                  static_cast<unsigned long long>(frame.seq), geometry::to_string(tv.refusal));
+    if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns)) {
+      set_reference(frame);
+    }
+    return false;
+  }
+
+  // Two keyframes: the reference (world frame) and this frame.
+  const SE3d T_w_c1 = orthonormalized(tv.T_c1_c0).inverse();
+  std::vector<float> depth0(ref_kps_.size(), 0.0F);
+  std::vector<float> depth1(kps_.size(), 0.0F);
+  std::vector<float> conf0(ref_kps_.size(), 0.0F);
+  std::vector<float> conf1(kps_.size(), 0.0F);
+  for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
+    if (tv.triangulated[i] == 0) continue;
+    const Eigen::Vector3d& X = tv.points_c0[i];
+    depth0[static_cast<std::size_t>(init_ref_idx_[i])] = static_cast<float>(X.z());
+    depth1[static_cast<std::size_t>(init_cur_idx_[i])] = static_cast<float>((tv.T_c1_c0 * X).z());
+    conf0[static_cast<std::size_t>(init_ref_idx_[i])] = 1.0F;
+    conf1[static_cast<std::size_t>(init_cur_idx_[i])] = 1.0F;
+  }
+  map::KeyframeInput k0;
+  k0.seq = ref_seq_;
+  k0.t_ns = ref_t_ns_;
+  k0.T_w_c = SE3d::Identity();
+  k0.keypoints = ref_kps_;
+  k0.descriptors = ref_descs_;
+  k0.depth = depth0;
+  k0.depth_confidence = conf0;
+  map::KeyframeInput k1;
+  k1.seq = frame.seq;
+  k1.t_ns = frame.t_ns;
+  k1.T_w_c = T_w_c1;
+  k1.keypoints = kps_;
+  k1.descriptors = descs_;
+  k1.depth = depth1;
+  k1.depth_confidence = conf1;
+  const Result<map::KeyframeId> kf0 = map_.add_keyframe(k0);
+  const Result<map::KeyframeId> kf1 = map_.add_keyframe(k1);
+  if (!kf0.is_ok() || !kf1.is_ok()) {
+    MER_LOG_ERROR("initialization: %s",
+                  (!kf0.is_ok() ? kf0.status() : kf1.status()).message().c_str());
+    return false;
+  }
+  std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
+  histogram_.clear();
+  depth_scratch_.clear();
+  int ni = 0;
+  for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
+    if (tv.triangulated[i] == 0) continue;
+    const Result<map::PointId> p =
+        map_.add_point(tv.points_c0[i], kf0.value(), static_cast<std::uint32_t>(init_ref_idx_[i]));
+    if (!p.is_ok()) break;
+    const auto k = static_cast<std::uint32_t>(init_cur_idx_[i]);
+    (void)map_.add_observation(p.value(), kf1.value(), k);
+    map_.update_point(p.value());
+    kp_point_[k] = p.value();
+    histogram_.add(kf0.value());
+    inlier_x_[static_cast<std::size_t>(ni)] = kps_[k].x;
+    inlier_y_[static_cast<std::size_t>(ni)] = kps_[k].y;
+    ++ni;
+    depth_scratch_.push_back((tv.T_c1_c0 * tv.points_c0[i]).z());
+  }
+  map_.update_covisibility(kf1.value());
+  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  T_c_w_ = orthonormalized(tv.T_c1_c0);
+  velocity_ = SE3d::Identity();
+  have_pose_ = true;
+  poor_prediction_ = true;
+  initialized_ = true;
+  counters_.initialized = true;
+  counters_.initialized_seq = frame.seq;
+  fix_focal_at_init(frame.seq);
+  policy_.reset(ni, frame.t_ns);
+  recent_[recent_next_] = histogram_;
+  recent_next_ = (recent_next_ + 1) % recent_.size();
+  r.state = TrackState::kTracked;
+  r.T_w_c = T_w_c1;
+  r.is_keyframe = true;
+  r.keyframe_reason = static_cast<std::uint8_t>(KeyframeReason::kInitialization);
+  r.num_inliers = ni;
+  r.num_matches = m;
+  r.focal = K_.fx;
+  last_T_w_c_ = T_w_c1;
+  ++counters_.tracked;
+  MER_LOG_INFO("initialized at frame %llu from frame %llu: %s model, %d points, parallax %.2f deg",
+               static_cast<unsigned long long>(frame.seq),
+               static_cast<unsigned long long>(ref_seq_),
+               tv.model == geometry::TwoViewModel::kHomography ? "homography" : "essential", ni,
+               tv.median_parallax_deg);
+  return true;
+}
+
+bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
+  if (frame.depth.empty()) return false;
+  if (focal_.estimated && focal_.estimates < opts_.focal.min_init_estimates) {
+    if (!ref_valid_ || static_cast<int>(kps_.size()) < opts_.init.min_features) {
+      set_reference(frame);
+      return false;
+    }
+    const int m = match_reference();
+    if (m < opts_.init.two_view.min_matches || reference_too_old(frame.t_ns)) {
+      set_reference(frame);
+      return false;
+    }
+    (void)focal_from_reference(m);
+    if (focal_.estimates < opts_.focal.min_init_estimates) return false;
+  }
+  std::vector<float> depth(kps_.size(), 0.0F);
+  std::vector<float> conf(kps_.size(), 0.0F);
+  int valid = 0;
+  for (std::size_t i = 0; i < kps_.size(); ++i) {
+    const float d = sample_depth(frame.depth, kps_[i].x, kps_[i].y);
+    if (d < kRgbdMinDepthM || d > kRgbdMaxDepthM) continue;
+    depth[i] = d;
+    conf[i] = 1.0F;
+    ++valid;
+  }
+  if (valid < opts_.init.rgbd_min_points) return false;
+  map::KeyframeInput k0;
+  k0.seq = frame.seq;
+  k0.t_ns = frame.t_ns;
+  k0.T_w_c = SE3d::Identity();
+  k0.keypoints = kps_;
+  k0.descriptors = descs_;
+  k0.depth = depth;
+  k0.depth_confidence = conf;
+  const Result<map::KeyframeId> kf0 = map_.add_keyframe(k0);
+  if (!kf0.is_ok()) {
+    MER_LOG_ERROR("initialization: %s", kf0.status().message().c_str());
+    return false;
+  }
+  std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
+  histogram_.clear();
+  depth_scratch_.clear();
+  int ni = 0;
+  for (std::size_t i = 0; i < kps_.size(); ++i) {
+    if (depth[i] <= 0.0F) continue;
+    const Eigen::Vector3d X = K_.unproject({kps_[i].x, kps_[i].y}) * depth[i];
+    const Result<map::PointId> p = map_.add_point(X, kf0.value(), static_cast<std::uint32_t>(i));
+    if (!p.is_ok()) break;
+    map_.update_point(p.value());
+    kp_point_[i] = p.value();
+    histogram_.add(kf0.value());
+    depth_scratch_.push_back(depth[i]);
+    ++ni;
+  }
+  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  T_c_w_ = SE3d::Identity();
+  velocity_ = SE3d::Identity();
+  have_pose_ = true;
+  poor_prediction_ = false;
+  initialized_ = true;
+  counters_.initialized = true;
+  counters_.initialized_seq = frame.seq;
+  fix_focal_at_init(frame.seq);
+  policy_.reset(ni, frame.t_ns);
+  recent_[recent_next_] = histogram_;
+  recent_next_ = (recent_next_ + 1) % recent_.size();
+  r.state = TrackState::kTracked;
+  r.T_w_c = SE3d::Identity();
+  r.is_keyframe = true;
+  r.keyframe_reason = static_cast<std::uint8_t>(KeyframeReason::kInitialization);
+  r.num_inliers = ni;
+  r.focal = K_.fx;
+  last_T_w_c_ = r.T_w_c;
+  ++counters_.tracked;
+  MER_LOG_INFO("initialized (RGB-D) at frame %llu with %d points",
+               static_cast<unsigned long long>(frame.seq), ni);
+  return true;
+}
+
+// ---- Entry point -------------------------------------------------------------------------
+
+TrackingResult Tracker::spin_once(const hal::Frame& frame) {
+  TrackingResult r;
+  r.seq = frame.seq;
+  r.t_ns = frame.t_ns;
+  r.focal = K_.fx;
+  r.has_ground_truth = frame.has_ground_truth;
+  r.T_w_c_gt = frame.T_w_c_gt;
+  const std::int64_t t_extract = platform::monotonic_now_ns();
+  extractor_->extract(frame.gray);
+  kps_ = extractor_->keypoints();
+  descs_ = extractor_->descriptors();
+  if (kps_.size() > grid_items_.size()) {
+    kps_ = kps_.first(grid_items_.size());
+    descs_ = descs_.first(grid_items_.size());
+  }
+  build_grid();
+  r.step_ns[static_cast<std::size_t>(TrackStep::kExtract)] = elapsed_ns(t_extract);
+  r.num_features = static_cast<std::int32_t>(kps_.size());
+  std::uint64_t h = kFnvOffset;
+  for (const auto& k : kps_) {
+    h = (h ^ static_cast<std::uint64_t>(static_cast<std::uint32_t>(k.x * 16.0F))) * kFnvPrime;
+    h = (h ^ static_cast<std::uint64_t>(static_cast<std::uint32_t>(k.y * 16.0F))) * kFnvPrime;
+  }
+  r.feature_hash = h;
+  if (opts_.busy_work_us > 0) {
+    const std::int64_t until =
+        platform::monotonic_now_ns() + std::int64_t{opts_.busy_work_us} * 1000;
+    while (platform::monotonic_now_ns() < until) {
+    }
+  }
+  if (!initialized_) {
+    r.state = TrackState::kNotInitialized;
+    if (mode_ == "rgbd") {
+      (void)initialize_rgbd(frame, r);
+    } else {
+      (void)initialize_mono(frame, r);
+    }
+    return r;
+  }
+  (void)track(frame, r);
+  return r;
+}
+
+}  // namespace mer::frontend

@@ -1,0 +1,191 @@
+#pragma once
+/// @file tracker.h
+/// The localization front end, `spin_once(Frame) -> TrackingResult`, for every frame:
+/// 1. extract ORB keypoints and descriptors;
+/// 2. query map-points: Q_T = points of the keyframes tracked in the last B frames, and
+///    Q_S = points in the 3D cells visible from the constant-velocity prediction;
+/// 3. match Q_T u Q_S by projection (radius search, Hamming distance + ratio test; a wider
+///    radius when the prediction is poor);
+/// 4. P3P LO-RANSAC + robust refinement, then a second tight search with the estimated
+///    pose and a final refinement (with `focal: auto`, the focal length is estimated
+///    jointly until it is stable, then fixed to the running median);
+/// 5. keyframe decision (inlier count, spread, KL jump of the tracked-point histogram).
+/// Before a map exists it initializes: two-view reconstruction (monocular) or one frame
+/// with depth (RGB-D). Lost frames are reported; relocalization is not part of tracking.
+///
+/// Threading: reads the map lock-free; the only map writes it makes are at initialization,
+/// before any keyframe job has been queued (the map has no other writer yet). After init,
+/// spin_once() does not allocate.
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "features/extractor.h"
+#include "frontend/keyframe_policy.h"
+#include "frontend/tracking_options.h"
+#include "frontend/tracking_result.h"
+#include "geometry/camera_model.h"
+#include "geometry/pnp.h"
+#include "hal/camera.h"
+#include "map/keyframe_job.h"
+#include "map/map.h"
+
+namespace mer::frontend {
+
+/// Focal-length estimation outcome (summary.json `focal`).
+struct FocalReport {
+  bool estimated = false;          ///< focal: auto
+  double initial = 0.0;            ///< guess the run started from, px
+  double value = 0.0;              ///< current (final) focal length, px
+  bool fixed = false;              ///< stopped estimating
+  std::int64_t fixed_at_seq = -1;  ///< frame it was fixed at
+  int estimates = 0;               ///< estimates the running median was taken over
+};
+
+/// Counters of the tracker (summary.json `tracking`).
+struct TrackerCounters {
+  std::uint64_t init_attempts = 0;    ///< two-view reconstructions tried
+  std::uint64_t init_refusals = 0;    ///< of which refused (degenerate)
+  std::uint64_t initialized_seq = 0;  ///< frame the map was initialized at
+  bool initialized = false;
+  std::uint64_t tracked = 0;
+  std::uint64_t lost = 0;
+  std::uint64_t wide_searches = 0;  ///< frames that needed the wide radius
+  std::uint64_t keyframes_decided = 0;
+  std::uint64_t keyframe_reasons[6] = {};  ///< per KeyframeReason
+  std::uint64_t sum_query_temporal = 0;
+  std::uint64_t sum_query_spatial = 0;
+  std::uint64_t sum_query_total = 0;
+  std::uint64_t sum_inliers = 0;
+  std::string last_init_refusal;  ///< reason of the last refused initialization
+};
+
+/// The tracking stage.
+class Tracker {
+ public:
+  /// `mode` "mono" or "rgbd"; `focal_auto` estimates the focal length from `K.fx` as a guess.
+  Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pinhole& K, int width,
+          int height, std::string mode, bool focal_auto);
+  ~Tracker();
+
+  /// Builds the extractor and buffers; error on bad options.
+  Status init();
+
+  /// Localizes one frame.
+  TrackingResult spin_once(const hal::Frame& frame);
+
+  /// Copies the frame the last spin_once() decided is a keyframe into `job` (call while the
+  /// frame is still valid). No allocation.
+  void fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const;
+  /// The keyframe decided last could not be queued (no free job): decide again next frame.
+  void keyframe_not_queued();
+
+  /// Keypoint variance per pyramid level (for depth inference).
+  std::vector<float> level_sigma2() const;
+  int max_keypoints() const;
+  const FocalReport& focal() const { return focal_; }
+  const TrackerCounters& counters() const { return counters_; }
+  const geometry::Pinhole& intrinsics() const { return K_; }
+
+ private:
+  struct Candidate;
+  void build_grid();
+  void gather_queries(const SE3d& T_c_w, TrackingResult& r);
+  int project_and_match(const SE3d& T_c_w, double radius_px, bool tight);
+  int collect_correspondences();
+  bool estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r);
+  bool track(const hal::Frame& frame, TrackingResult& r);
+  bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
+  bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
+  void set_reference(const hal::Frame& frame);
+  bool reference_too_old(std::int64_t t_ns) const;
+  int match_reference();
+  bool focal_from_reference(int matches);
+  void update_focal(double f, std::uint64_t seq);
+  void fix_focal_at_init(std::uint64_t seq);
+  double sigma2(int level) const;
+
+  TrackingOptions opts_;
+  map::Map& map_;
+  geometry::Pinhole K_;
+  int width_;
+  int height_;
+  std::string mode_;
+  FocalReport focal_;
+  TrackerCounters counters_;
+  std::unique_ptr<features::Extractor> extractor_;
+  std::unique_ptr<geometry::PnpRansac> pnp_;
+  KeyframePolicy policy_;
+
+  // Frame state.
+  std::span<const features::Keypoint> kps_;
+  std::span<const features::Descriptor> descs_;
+  int grid_cols_ = 0;
+  int grid_rows_ = 0;
+  std::vector<std::int32_t> grid_start_;  // cols*rows + 1
+  std::vector<std::int32_t> grid_items_;  // keypoint indices sorted by cell
+  std::vector<std::int32_t> grid_fill_;
+
+  // Query and match buffers.
+  struct CandidateData;
+  std::vector<std::uint32_t> stamp_;  // per map-point: frame stamp it was last queried in
+  std::uint32_t frame_stamp_ = 0;
+  std::vector<std::uint32_t> query_buf_;
+  std::vector<std::uint32_t> cand_id_;
+  std::vector<Eigen::Vector3d> cand_p_w_;
+  std::vector<features::Descriptor> cand_desc_;
+  std::vector<Eigen::Vector3f> cand_normal_;
+  std::vector<float> cand_max_dist_;
+  std::vector<std::uint32_t> cand_kf_;
+  std::vector<std::int32_t> cand_match_;  // keypoint index or -1
+  int num_cand_ = 0;
+  std::vector<std::int32_t> kp_cand_;  // per keypoint: candidate index or -1
+  std::vector<std::int32_t> kp_dist_;  // per keypoint: descriptor distance of its match
+  std::vector<Eigen::Vector3d> corr_X_;
+  std::vector<Eigen::Vector2d> corr_uv_;
+  std::vector<float> corr_sigma_;
+  std::vector<std::int32_t> corr_kp_;
+  std::vector<std::uint8_t> corr_mask_;
+  std::vector<float> inlier_x_;
+  std::vector<float> inlier_y_;
+  std::vector<std::uint32_t> kp_point_;  // per keypoint: tracked (inlier) map-point or kNoId
+  KeyframeHistogram histogram_;
+  std::vector<KeyframeHistogram> recent_;  // histograms of the last B localized frames
+  std::size_t recent_next_ = 0;
+  std::vector<std::uint32_t> qt_keyframes_;
+
+  // Motion.
+  bool have_pose_ = false;
+  SE3d T_c_w_ = SE3d::Identity();
+  SE3d velocity_ = SE3d::Identity();  // T_c(k)_c(k-1)
+  bool poor_prediction_ = true;
+  double median_depth_ = 1.0;
+  std::vector<double> depth_scratch_;
+  std::uint64_t frames_since_init_ = 0;
+
+  // Initialization.
+  bool initialized_ = false;
+  bool ref_valid_ = false;
+  std::uint64_t ref_seq_ = 0;
+  std::int64_t ref_t_ns_ = 0;
+  std::vector<features::Keypoint> ref_kps_;
+  std::vector<features::Descriptor> ref_descs_;
+  std::vector<Eigen::Vector2d> ref_prev_;  // last matched position of each reference keypoint
+  std::vector<std::int32_t> ref_match_;    // current keypoint matched to each reference keypoint
+  std::vector<Eigen::Vector2d> init_uv0_;
+  std::vector<Eigen::Vector2d> init_uv1_;
+  std::vector<std::int32_t> init_ref_idx_;
+  std::vector<std::int32_t> init_cur_idx_;
+  std::vector<double> focal_estimates_;
+  int focal_stable_count_ = 0;
+
+  // Keyframe decided last (for fill_keyframe_job).
+  bool pending_keyframe_ = false;
+  SE3d last_T_w_c_ = SE3d::Identity();
+  std::uint8_t last_reason_ = 0;
+  bool force_keyframe_ = false;
+};
+
+}  // namespace mer::frontend

@@ -1,0 +1,154 @@
+#pragma once
+/// @file tracking_options.h
+/// Options of the localization front end (config section `tracking`).
+
+#include "core/options.h"
+#include "features/extractor.h"
+#include "frontend/keyframe_policy.h"
+#include "geometry/pnp.h"
+#include "geometry/two_view.h"
+
+namespace mer::frontend {
+
+/// Projection-guided matching of map-points against the frame's keypoints.
+struct MatchOptions {
+  int max_hamming = 80;           ///< largest descriptor distance of a match
+  double ratio = 0.85;            ///< best / second-best distance ratio
+  double radius_px = 10.0;        ///< search radius around the predicted projection, level-0 px
+  double wide_radius_px = 40.0;   ///< radius when the prediction is poor (after a failure)
+  double refine_radius_px = 4.0;  ///< radius of the second search with the estimated pose
+  int min_matches = 40;           ///< fewer matches -> retry with the wide radius
+  int grid_cell_px = 16;          ///< keypoint grid cell size for radius search, px
+  double min_view_cos = 0.4;      ///< cosine of the largest angle to a point's mean view direction
+  int level_window = 1;           ///< pyramid levels around the predicted one that are searched
+
+  template <class V>
+  void visit(V& v) {
+    v.field("max_hamming", max_hamming, "largest descriptor distance of a match",
+            options::Range<int>{0, 256});
+    v.field("ratio", ratio, "best / second-best descriptor distance ratio",
+            options::Range<double>{0.0, 1.0});
+    v.field("radius_px", radius_px, "search radius around the predicted projection, px",
+            options::Range<double>{0.5, 1000.0});
+    v.field("wide_radius_px", wide_radius_px, "search radius when the prediction is poor, px",
+            options::Range<double>{0.5, 2000.0});
+    v.field("refine_radius_px", refine_radius_px,
+            "search radius of the second pass with the estimated pose, px",
+            options::Range<double>{0.5, 1000.0});
+    v.field("min_matches", min_matches, "fewer matches retries with the wide radius",
+            options::Range<int>{3, 100000});
+    v.field("grid_cell_px", grid_cell_px, "keypoint grid cell size, px",
+            options::Range<int>{2, 512});
+    v.field("min_view_cos", min_view_cos,
+            "cosine of the largest angle between the view ray and a point's mean view direction",
+            options::Range<double>{-1.0, 1.0});
+    v.field("level_window", level_window, "pyramid levels around the predicted level searched",
+            options::Range<int>{0, 16});
+  }
+};
+
+/// Monocular / RGB-D initialization.
+struct InitOptions {
+  geometry::TwoViewOptions two_view;  ///< two-view reconstruction and its refusals
+  double search_radius_px =
+      100.0;               ///< window of the frame-to-frame search of the reference keypoints
+  int max_hamming = 60;    ///< descriptor distance of an initialization match
+  double ratio = 0.9;      ///< best / second-best ratio of an initialization match
+  int min_features = 150;  ///< a reference frame needs this many keypoints
+  double max_reference_age_s = 1.4;  ///< time a reference is kept while init is refused, s
+  int rgbd_min_points = 100;         ///< RGB-D: keypoints with valid depth needed to start
+
+  template <class V>
+  void visit(V& v) {
+    v.section("two_view", two_view, "two-view reconstruction (monocular)");
+    v.field("search_radius_px", search_radius_px,
+            "window of the frame-to-frame search of the reference keypoints, px",
+            options::Range<double>{1.0, 4000.0});
+    v.field("max_hamming", max_hamming, "descriptor distance of an initialization match",
+            options::Range<int>{0, 256});
+    v.field("ratio", ratio, "best / second-best ratio of an initialization match",
+            options::Range<double>{0.0, 1.0});
+    v.field("min_features", min_features, "keypoints a reference frame needs",
+            options::Range<int>{8, 100000});
+    v.field("max_reference_age_s", max_reference_age_s,
+            "time a reference frame is kept while initialization is refused, s",
+            options::Range<double>{0.01, 1e6});
+    v.field("rgbd_min_points", rgbd_min_points, "RGB-D: keypoints with valid depth needed to start",
+            options::Range<int>{3, 100000});
+  }
+};
+
+/// Focal-length estimation (`pipeline.focal: auto`).
+struct FocalOptions {
+  int min_init_estimates = 5;      ///< two-view focal estimates needed before initializing
+  double min_disparity_px = 20.0;  ///< median disparity a pair needs to give an estimate
+  int stable_frames = 15;          ///< estimates within tolerance of the median that fix it
+  double stable_tolerance = 0.01;  ///< relative tolerance of "stable"
+  int max_frames = 150;            ///< the focal is fixed at the latest after this many frames
+  bool refine_after_init = false;  ///< keep estimating jointly with PnP after initialization
+
+  template <class V>
+  void visit(V& v) {
+    v.field("min_init_estimates", min_init_estimates,
+            "two-view focal estimates needed before initializing", options::Range<int>{1, 1000});
+    v.field("min_disparity_px", min_disparity_px,
+            "median disparity a frame pair needs to estimate the focal length, px",
+            options::Range<double>{0.0, 1000.0});
+    v.field("stable_frames", stable_frames,
+            "consecutive estimates within tolerance of the running median that fix the focal",
+            options::Range<int>{1, 10000});
+    v.field("stable_tolerance", stable_tolerance, "relative tolerance of a stable estimate",
+            options::Range<double>{0.0, 1.0});
+    v.field("max_frames", max_frames, "tracked frames after which the focal is fixed anyway",
+            options::Range<int>{1, 1000000});
+    v.field("refine_after_init", refine_after_init,
+            "after initialization, keep estimating the focal jointly with each PnP pose until "
+            "stable (off: fixed to the two-view median at initialization; PnP against a map "
+            "built with that focal mostly confirms it)");
+  }
+};
+
+/// Options of the tracking stage.
+struct TrackingOptions {
+  features::ExtractorOptions extractor;  ///< keypoints and descriptors
+  MatchOptions match;                    ///< map-point to keypoint matching
+  geometry::PnpOptions pnp;              ///< absolute pose
+  KeyframePolicyOptions keyframe;        ///< keyframe decision
+  InitOptions init;                      ///< initialization
+  FocalOptions focal;                    ///< focal-length estimation
+  bool scale_features_with_area = true;  ///< extractor.num_features is for 640x480; scale it
+                                         ///< with larger images (capped by the map's capacity)
+  int temporal_frames = 5;               ///< B: the keyframes tracked in the last B frames give Q_T
+  int max_query_points = 12000;          ///< map-points considered per frame (Q_T and Q_S together)
+  double query_far = 4.0;  ///< Q_S depth range: this many times the median tracked depth
+  int min_inliers = 25;    ///< fewer PnP inliers: the frame is lost
+  int busy_work_us = 0;    ///< extra busy-wait per frame, us (load tests of the drop policy)
+
+  template <class V>
+  void visit(V& v) {
+    v.section("extractor", extractor, "keypoint extraction (ORB)");
+    v.section("match", match, "projection-guided map-point matching");
+    v.section("pnp", pnp, "PnP-RANSAC and pose refinement");
+    v.section("keyframe", keyframe, "keyframe decision");
+    v.section("init", init, "map initialization");
+    v.section("focal", focal, "focal-length estimation (pipeline.focal: auto)");
+    v.field("scale_features_with_area", scale_features_with_area,
+            "extractor.num_features is meant for 640x480: scale it up with the image area "
+            "(capped by map.max_keypoints_per_keyframe)");
+    v.field("temporal_frames", temporal_frames,
+            "B: keyframes tracked in the last B frames give the temporal query Q_T",
+            options::Range<int>{1, 1000});
+    v.field("max_query_points", max_query_points, "map-points considered per frame",
+            options::Range<int>{16, 1000000});
+    v.field("query_far", query_far,
+            "spatial query depth range, in multiples of the median tracked depth",
+            options::Range<double>{1.0, 1000.0});
+    v.field("min_inliers", min_inliers, "fewer PnP inliers marks the frame lost",
+            options::Range<int>{3, 100000});
+    v.field("busy_work_us", busy_work_us,
+            "extra busy-wait per frame, us (simulates a heavier tracker; 0 in normal use)",
+            options::Range<int>{0, 10000000});
+  }
+};
+
+}  // namespace mer::frontend

@@ -1,0 +1,886 @@
+#include "geometry/two_view.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <Eigen/SVD>
+
+#include "geometry/triangulation.h"
+
+namespace mer::geometry {
+namespace {
+
+/// 95 % quantile of chi2 with 1 dof: squared point-to-epipolar-line distance / variance.
+constexpr double kChi2OneDof95 = 3.841;
+/// 95 % quantile of chi2 with 2 dof: squared point-to-point distance / variance.
+constexpr double kChi2TwoDof95 = 5.991;
+/// Transfer and epipolar residuals carry the keypoint noise of both images: their variance is
+/// about twice the keypoint variance sigma^2.
+constexpr double kResidualVarianceFactor = 2.0;
+/// Score offset per image of an F inlier. A correct model's 2-dof residual (H) has an expected
+/// chi2 one larger than a 1-dof residual (F: distance to a line), so with the same offset F
+/// would out-score H even on a plane, where both explain every point. One less makes a correct
+/// H and a correct F score the same on average, so R_H ~ 0.5 on planes (F degenerate) and
+/// R_H << 0.5 when only F explains the points.
+constexpr double kScoreOffsetF = kChi2TwoDof95 - 1.0;
+/// Score offset per image of an H inlier.
+constexpr double kScoreOffsetH = kChi2TwoDof95;
+/// Most any single correspondence can add to a score (both images, zero residual).
+constexpr double kMaxScorePerPoint = 2.0 * kScoreOffsetH;
+/// Correspondences per RANSAC sample (8-point F); the homography uses the first four.
+constexpr int kSampleSize = 8;
+constexpr int kHomographySampleSize = 4;
+/// Least-squares refits on the inlier set after RANSAC (stop early when the score drops).
+constexpr int kRefitPasses = 3;
+/// A rotation alone explaining this fraction of the best model's inliers means there is no
+/// usable baseline (a translation large enough to initialize moves most points off the
+/// rotation-only prediction by more than the 2-dof chi2 gate).
+constexpr double kPureRotationInlierFraction = 0.7;
+/// Homography singular values closer than this (relative) count as equal: the homography is a
+/// rotation (no translation) or degenerate, and its decomposition is undefined.
+constexpr double kMinSingularGap = 1e-6;
+/// Homography hypotheses with |det| below this (of the Hartley-normalized H, unit Frobenius
+/// norm) are singular (collinear samples) and skipped.
+constexpr double kMinHomographyDet = 1e-9;
+/// Mean distance of Hartley-normalized points from their centroid.
+constexpr double kHartleyMeanDistance = std::numbers::sqrt2;
+/// Points closer than this (px) to their centroid on average: no normalization scale.
+constexpr double kMinSpreadPx = 1e-9;
+/// A motion candidate that is not consistent with at least this fraction of the winner's good
+/// points is refuted by them and does not make the choice ambiguous.
+constexpr double kMinRefutedFraction = 0.05;
+/// Degrees per radian.
+constexpr double kRadToDeg = 180.0 / std::numbers::pi;
+/// Rays whose angle has a squared sine below this are parallel for the candidate vote
+/// (~0.006 deg: far below any useful parallax).
+constexpr double kMinRayAngleSin2 = 1e-8;
+
+/// Levenberg-Marquardt settings of the motion refinement (Sampson error, 5 dof).
+constexpr int kLmMaxIterations = 15;
+constexpr double kLmInitialDamping = 1e-4;  // relative to diag(J^T J)
+constexpr double kLmMaxDamping = 1e8;       // give up when the damping grows beyond
+constexpr double kLmDampingDown = 0.1;
+constexpr double kLmDampingUp = 10.0;
+constexpr double kLmJacobianStep = 1e-7;          // rad / unit-vector step of the numeric Jacobian
+constexpr double kLmMinRelativeDecrease = 1e-10;  // converged
+/// Refine / re-gate rounds of the essential model's local optimization.
+constexpr int kLocalOptimizationRounds = 4;
+
+using Matrix9d = Eigen::Matrix<double, 9, 9>;
+using Vector9d = Eigen::Matrix<double, 9, 1>;
+using RowMatrix3d = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+
+/// SplitMix64 (Steele, Lea, Flood 2014): tiny, fast, good enough to draw RANSAC samples.
+class SplitMix64 {
+ public:
+  explicit SplitMix64(std::uint64_t seed) : state_(seed) {}
+  std::uint64_t next() {
+    constexpr std::uint64_t kGamma = 0x9e3779b97f4a7c15ULL;  // golden-ratio increment
+    constexpr std::uint64_t kMul1 = 0xbf58476d1ce4e5b9ULL;   // mixing constants of SplitMix64
+    constexpr std::uint64_t kMul2 = 0x94d049bb133111ebULL;
+    constexpr int kShift1 = 30;
+    constexpr int kShift2 = 27;
+    constexpr int kShift3 = 31;
+    std::uint64_t z = (state_ += kGamma);
+    z = (z ^ (z >> kShift1)) * kMul1;
+    z = (z ^ (z >> kShift2)) * kMul2;
+    return z ^ (z >> kShift3);
+  }
+  /// Uniform in [0, n) (modulo bias < n / 2^64: negligible).
+  std::size_t below(std::size_t n) { return static_cast<std::size_t>(next() % n); }
+
+ private:
+  std::uint64_t state_;
+};
+
+/// Hartley normalization: translate the centroid to 0, scale the mean distance to sqrt(2).
+Eigen::Matrix3d hartley_normalization(std::span<const Eigen::Vector2d> pts) {
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& p : pts) mean += p;
+  mean /= static_cast<double>(pts.size());
+  double mean_dist = 0.0;
+  for (const auto& p : pts) mean_dist += (p - mean).norm();
+  mean_dist /= static_cast<double>(pts.size());
+  const double s = mean_dist > kMinSpreadPx ? kHartleyMeanDistance / mean_dist : 1.0;
+  Eigen::Matrix3d T;
+  T << s, 0.0, -s * mean.x(), 0.0, s, -s * mean.y(), 0.0, 0.0, 1.0;
+  return T;
+}
+
+Eigen::Vector2d apply(const Eigen::Matrix3d& T, const Eigen::Vector2d& p) {
+  return {T(0, 0) * p.x() + T(0, 2), T(1, 1) * p.y() + T(1, 2)};
+}
+
+/// Unit vector minimizing |A a| given A^T A (eigenvector of the smallest eigenvalue).
+Vector9d smallest_eigenvector(const Matrix9d& ata) {
+  const Eigen::SelfAdjointEigenSolver<Matrix9d> es(ata);
+  return es.eigenvectors().col(0);
+}
+
+void add_rows_fundamental(Matrix9d& ata, const Eigen::Vector2d& p0, const Eigen::Vector2d& p1,
+                          double weight = 1.0) {
+  Vector9d a;
+  a << p1.x() * p0.x(), p1.x() * p0.y(), p1.x(), p1.y() * p0.x(), p1.y() * p0.y(), p1.y(), p0.x(),
+      p0.y(), 1.0;
+  ata.selfadjointView<Eigen::Lower>().rankUpdate(a, weight);
+}
+
+void add_rows_homography(Matrix9d& ata, const Eigen::Vector2d& p0, const Eigen::Vector2d& p1) {
+  Vector9d a;
+  a << 0.0, 0.0, 0.0, -p0.x(), -p0.y(), -1.0, p1.y() * p0.x(), p1.y() * p0.y(), p1.y();
+  ata.selfadjointView<Eigen::Lower>().rankUpdate(a);
+  a << p0.x(), p0.y(), 1.0, 0.0, 0.0, 0.0, -p1.x() * p0.x(), -p1.x() * p0.y(), -p1.x();
+  ata.selfadjointView<Eigen::Lower>().rankUpdate(a);
+}
+
+Eigen::Matrix3d to_matrix(const Vector9d& v) {
+  return RowMatrix3d(v.data());
+}
+
+/// F from the normal matrix of the normalized 8-point system, rank 2 enforced, then
+/// denormalized to pixels (x1^T F x0 = 0).
+Eigen::Matrix3d solve_fundamental(const Matrix9d& ata, const Eigen::Matrix3d& T0,
+                                  const Eigen::Matrix3d& T1) {
+  Matrix9d full = ata.selfadjointView<Eigen::Lower>();
+  const Eigen::Matrix3d Fn = to_matrix(smallest_eigenvector(full));
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Fn, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Vector3d sv = svd.singularValues();
+  sv(2) = 0.0;
+  const Eigen::Matrix3d F2 = svd.matrixU() * sv.asDiagonal() * svd.matrixV().transpose();
+  return T1.transpose() * F2 * T0;
+}
+
+/// H from the normal matrix of the normalized DLT system, denormalized to pixels. Returns
+/// false for a singular hypothesis.
+bool solve_homography(const Matrix9d& ata, const Eigen::Matrix3d& T0, const Eigen::Matrix3d& T1,
+                      Eigen::Matrix3d& H) {
+  Matrix9d full = ata.selfadjointView<Eigen::Lower>();
+  const Eigen::Matrix3d Hn = to_matrix(smallest_eigenvector(full));
+  if (!(std::abs(Hn.determinant()) > kMinHomographyDet)) return false;
+  H = T1.inverse() * Hn * T0;
+  return true;
+}
+
+/// ORB-SLAM-style truncated score of F: for each correspondence and each image, the squared
+/// distance to the epipolar line over the residual variance (chi2, 1 dof) must pass
+/// kChi2OneDof95; passing ones add kScoreOffsetF - chi2. Gives up (returns -1, mask
+/// incomplete) as soon as `to_beat` is out of reach.
+double score_fundamental(const Eigen::Matrix3d& F, std::span<const Eigen::Vector2d> uv0,
+                         std::span<const Eigen::Vector2d> uv1, double inv_var, double to_beat,
+                         std::vector<std::uint8_t>& inliers, int& count) {
+  // Scalar code: this loop and the one of score_homography dominate the run time.
+  const double f00 = F(0, 0), f01 = F(0, 1), f02 = F(0, 2);
+  const double f10 = F(1, 0), f11 = F(1, 1), f12 = F(1, 2);
+  const double f20 = F(2, 0), f21 = F(2, 1), f22 = F(2, 2);
+  double score = 0.0;
+  count = 0;
+  const std::size_t n = uv0.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double u0 = uv0[i].x(), v0 = uv0[i].y(), u1 = uv1[i].x(), v1 = uv1[i].y();
+    const double a1 = f00 * u0 + f01 * v0 + f02;  // epipolar line of x0 in image 1
+    const double b1 = f10 * u0 + f11 * v0 + f12;
+    const double c1 = f20 * u0 + f21 * v0 + f22;
+    const double a0 = f00 * u1 + f10 * v1 + f20;  // epipolar line of x1 in image 0
+    const double b0 = f01 * u1 + f11 * v1 + f21;
+    const double num = u1 * a1 + v1 * b1 + c1;
+    const double num2 = num * num * inv_var;
+    const double chi1 = num2 / (a1 * a1 + b1 * b1);
+    const double chi0 = num2 / (a0 * a0 + b0 * b0);
+    const bool in = chi1 <= kChi2OneDof95 && chi0 <= kChi2OneDof95;  // false for NaN
+    inliers[i] = in ? 1 : 0;
+    if (in) {
+      score += (kScoreOffsetF - chi1) + (kScoreOffsetF - chi0);
+      ++count;
+    } else if (score + static_cast<double>(n - i - 1) * kMaxScorePerPoint < to_beat) {
+      return -1.0;
+    }
+  }
+  return score;
+}
+
+/// Truncated symmetric transfer score of H (2-dof chi2 in both images); early exit as above.
+double score_homography(const Eigen::Matrix3d& H, std::span<const Eigen::Vector2d> uv0,
+                        std::span<const Eigen::Vector2d> uv1, double inv_var, double to_beat,
+                        std::vector<std::uint8_t>& inliers, int& count) {
+  const Eigen::Matrix3d G = H.inverse();
+  const double h00 = H(0, 0), h01 = H(0, 1), h02 = H(0, 2);
+  const double h10 = H(1, 0), h11 = H(1, 1), h12 = H(1, 2);
+  const double h20 = H(2, 0), h21 = H(2, 1), h22 = H(2, 2);
+  const double g00 = G(0, 0), g01 = G(0, 1), g02 = G(0, 2);
+  const double g10 = G(1, 0), g11 = G(1, 1), g12 = G(1, 2);
+  const double g20 = G(2, 0), g21 = G(2, 1), g22 = G(2, 2);
+  double score = 0.0;
+  count = 0;
+  const std::size_t n = uv0.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const double u0 = uv0[i].x(), v0 = uv0[i].y(), u1 = uv1[i].x(), v1 = uv1[i].y();
+    const double w1 = 1.0 / (h20 * u0 + h21 * v0 + h22);  // x0 transferred to image 1
+    const double du1 = (h00 * u0 + h01 * v0 + h02) * w1 - u1;
+    const double dv1 = (h10 * u0 + h11 * v0 + h12) * w1 - v1;
+    const double chi1 = (du1 * du1 + dv1 * dv1) * inv_var;
+    bool in = chi1 <= kChi2TwoDof95;  // false for NaN
+    double chi0 = 0.0;
+    if (in) {
+      const double w0 = 1.0 / (g20 * u1 + g21 * v1 + g22);  // x1 transferred to image 0
+      const double du0 = (g00 * u1 + g01 * v1 + g02) * w0 - u0;
+      const double dv0 = (g10 * u1 + g11 * v1 + g12) * w0 - v0;
+      chi0 = (du0 * du0 + dv0 * dv0) * inv_var;
+      in = chi0 <= kChi2TwoDof95;
+    }
+    inliers[i] = in ? 1 : 0;
+    if (in) {
+      score += (kScoreOffsetH - chi1) + (kScoreOffsetH - chi0);
+      ++count;
+    } else if (score + static_cast<double>(n - i - 1) * kMaxScorePerPoint < to_beat) {
+      return -1.0;
+    }
+  }
+  return score;
+}
+
+/// Draws kSampleSize distinct indices in [0, n).
+void draw_sample(SplitMix64& rng, std::size_t n, std::array<std::size_t, kSampleSize>& idx) {
+  for (int k = 0; k < kSampleSize; ++k) {
+    bool fresh = false;
+    while (!fresh) {
+      idx[k] = rng.below(n);
+      fresh = std::find(idx.begin(), idx.begin() + k, idx[k]) == idx.begin() + k;
+    }
+  }
+}
+
+Eigen::Matrix3d k_matrix(const Pinhole& K) {
+  Eigen::Matrix3d M;
+  M << K.fx, 0.0, K.cx, 0.0, K.fy, K.cy, 0.0, 0.0, 1.0;
+  return M;
+}
+
+/// Motion hypothesis: x_c1 = R x_c0 + t (t of arbitrary positive scale).
+struct Motion {
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+};
+
+/// The four (R, t) factorizations of an essential matrix (Hartley & Zisserman, result 9.19).
+std::vector<Motion> decompose_essential(const Eigen::Matrix3d& E) {
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(E, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d U = svd.matrixU();
+  Eigen::Matrix3d V = svd.matrixV();
+  if (U.determinant() < 0.0) U = -U;  // E is defined up to sign: keep both factors proper
+  if (V.determinant() < 0.0) V = -V;
+  Eigen::Matrix3d W;
+  W << 0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0;
+  const Eigen::Matrix3d R1 = U * W * V.transpose();
+  const Eigen::Matrix3d R2 = U * W.transpose() * V.transpose();
+  const Eigen::Vector3d t = U.col(2);
+  return {{R1, t}, {R1, -t}, {R2, t}, {R2, -t}};
+}
+
+/// The eight (R, t) factorizations of a calibrated homography Hn ~ R + t n^T / d
+/// (Faugeras & Lustman 1988, SVD method): with Hn = U diag(d1, d2, d3) V^T and
+/// s = det(U) det(V), R = s U R' V^T and t = U t', where (R', t') solve the diagonal problem
+/// for d' = +d2 (rotation about y by theta) and d' = -d2 (reflection-like case), each with
+/// the four sign choices (e1, e3) of the normal's components. Empty when two singular values
+/// coincide (rotation-only or degenerate homography).
+std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hn, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Vector3d d = svd.singularValues();
+  if (d(0) / d(1) < 1.0 + kMinSingularGap || d(1) / d(2) < 1.0 + kMinSingularGap) return {};
+  const Eigen::Matrix3d& U = svd.matrixU();
+  const Eigen::Matrix3d& V = svd.matrixV();
+  const double s = U.determinant() * V.determinant();
+  const double d1 = d(0);
+  const double d2 = d(1);
+  const double d3 = d(2);
+  const double d1s = d1 * d1;
+  const double d2s = d2 * d2;
+  const double d3s = d3 * d3;
+  const double x1_abs = std::sqrt((d1s - d2s) / (d1s - d3s));
+  const double x3_abs = std::sqrt((d2s - d3s) / (d1s - d3s));
+  const double root = std::sqrt((d1s - d2s) * (d2s - d3s));
+  constexpr std::array<double, 4> kE1{1.0, 1.0, -1.0, -1.0};
+  constexpr std::array<double, 4> kE3{1.0, -1.0, 1.0, -1.0};
+  std::vector<Motion> out;
+  out.reserve(2 * kE1.size());
+  // d' = +d2
+  const double cos_theta = (d2s + d1 * d3) / ((d1 + d3) * d2);
+  const double sin_theta_abs = root / ((d1 + d3) * d2);
+  for (std::size_t k = 0; k < kE1.size(); ++k) {
+    const double x1 = kE1[k] * x1_abs;
+    const double x3 = kE3[k] * x3_abs;
+    const double sin_theta = kE1[k] * kE3[k] * sin_theta_abs;
+    Eigen::Matrix3d Rp;
+    Rp << cos_theta, 0.0, -sin_theta, 0.0, 1.0, 0.0, sin_theta, 0.0, cos_theta;
+    const Eigen::Vector3d tp = (d1 - d3) * Eigen::Vector3d(x1, 0.0, -x3);
+    out.push_back({s * U * Rp * V.transpose(), U * tp});
+  }
+  // d' = -d2
+  const double cos_phi = (d1 * d3 - d2s) / ((d1 - d3) * d2);
+  const double sin_phi_abs = root / ((d1 - d3) * d2);
+  for (std::size_t k = 0; k < kE1.size(); ++k) {
+    const double x1 = kE1[k] * x1_abs;
+    const double x3 = kE3[k] * x3_abs;
+    const double sin_phi = kE1[k] * kE3[k] * sin_phi_abs;
+    Eigen::Matrix3d Rp;
+    Rp << cos_phi, 0.0, sin_phi, 0.0, -1.0, 0.0, sin_phi, 0.0, -cos_phi;
+    const Eigen::Vector3d tp = (d1 + d3) * Eigen::Vector3d(x1, 0.0, x3);
+    out.push_back({s * U * Rp * V.transpose(), U * tp});
+  }
+  return out;
+}
+
+/// What triangulating a model's inliers with one motion candidate gives.
+struct CandidateCheck {
+  int good = 0;        ///< consistent and seen under >= min_point_parallax_deg
+  int consistent = 0;  ///< in front of both cameras with reprojection chi2 below the gate
+  std::vector<double> parallax_deg;  ///< of the consistent points
+  std::vector<std::uint8_t> status;  ///< per correspondence: kConsistent | kGood bits
+};
+
+constexpr std::uint8_t kConsistent = 1;  ///< CandidateCheck::status bit
+constexpr std::uint8_t kGood = 2;        ///< CandidateCheck::status bit
+
+/// Fast triangulation for the candidate vote (camera 0 = [I | 0], camera 1 = [R | t]):
+/// midpoint of the common perpendicular of the two rays, from the 2x2 normal equations of
+/// min |l0 R x0 + t - l1 x1|. False for (near-)parallel rays.
+bool triangulate_midpoint(const Motion& m, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1,
+                          Eigen::Vector3d& p_c0) {
+  const Eigen::Vector3d a = m.R * x0;
+  const double aa = a.squaredNorm();
+  const double bb = x1.squaredNorm();
+  const double ab = a.dot(x1);
+  const double det = aa * bb - ab * ab;  // |a x x1|^2
+  if (!(det > kMinRayAngleSin2 * aa * bb)) return false;
+  const double at = a.dot(m.t);
+  const double bt = x1.dot(m.t);
+  const double l0 = (ab * bt - bb * at) / det;
+  const double l1 = (aa * bt - ab * at) / det;
+  // Midpoint in camera 1, mapped back to camera 0.
+  const Eigen::Vector3d p_c1 = 0.5 * (l0 * a + m.t + l1 * x1);
+  p_c0 = m.R.transpose() * (p_c1 - m.t);
+  return true;
+}
+
+/// Triangulates the inliers with candidate `m` (midpoint for the vote; DLT, as in the map,
+/// when `points`/`flags` are given) and applies the cheirality, reprojection and parallax
+/// tests.
+CandidateCheck check_candidate(const Motion& m, std::span<const Eigen::Vector2d> uv0,
+                               std::span<const Eigen::Vector2d> uv1,
+                               std::span<const std::uint8_t> inliers, const Pinhole& K,
+                               const TwoViewOptions& o, std::vector<Eigen::Vector3d>* points,
+                               std::vector<std::uint8_t>* flags) {
+  CandidateCheck c;
+  c.parallax_deg.reserve(uv0.size());
+  c.status.assign(uv0.size(), 0);
+  SE3d T_c1_c0 = SE3d::Identity();
+  T_c1_c0.linear() = m.R;
+  T_c1_c0.translation() = m.t;
+  const SE3d identity = SE3d::Identity();
+  const Eigen::Vector3d c1 = -(m.R.transpose() * m.t);
+  const double inv_sigma2 = 1.0 / (o.sigma_px * o.sigma_px);
+  const bool final_map = points != nullptr;
+  for (std::size_t i = 0; i < uv0.size(); ++i) {
+    if (!inliers[i]) continue;
+    const Eigen::Vector3d x0 = K.unproject(uv0[i]);
+    const Eigen::Vector3d x1 = K.unproject(uv1[i]);
+    Eigen::Vector3d X;
+    const bool ok = final_map ? triangulate_two_view(identity, T_c1_c0, x0, x1, X)
+                              : triangulate_midpoint(m, x0, x1, X);
+    if (!ok) continue;
+    const Eigen::Vector3d X1 = T_c1_c0 * X;
+    if (!(X.z() > 0.0) || !(X1.z() > 0.0)) continue;
+    if ((K.project(X) - uv0[i]).squaredNorm() * inv_sigma2 > kChi2TwoDof95) continue;
+    if ((K.project(X1) - uv1[i]).squaredNorm() * inv_sigma2 > kChi2TwoDof95) continue;
+    ++c.consistent;
+    c.status[i] = kConsistent;
+    const double par = parallax_deg(X, Eigen::Vector3d::Zero(), c1);
+    c.parallax_deg.push_back(par);
+    if (par < o.min_point_parallax_deg) continue;
+    ++c.good;
+    c.status[i] |= kGood;
+    if (final_map) (*points)[i] = X;
+    if (flags != nullptr) (*flags)[i] = 1;
+  }
+  return c;
+}
+
+/// Pixel fundamental matrix K^-T [t]x R K^-1 of a motion.
+Eigen::Matrix3d fundamental_from_motion(const Motion& m, const Eigen::Matrix3d& K) {
+  Eigen::Matrix3d t_x;
+  t_x << 0.0, -m.t.z(), m.t.y(), m.t.z(), 0.0, -m.t.x(), -m.t.y(), m.t.x(), 0.0;
+  const Eigen::Matrix3d Ki = K.inverse();
+  return Ki.transpose() * t_x * m.R * Ki;
+}
+
+/// Orthonormal 3x2 basis of the plane orthogonal to unit vector `t`.
+Eigen::Matrix<double, 3, 2> tangent_basis(const Eigen::Vector3d& t) {
+  const Eigen::Vector3d helper =
+      std::abs(t.x()) < std::abs(t.y()) ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  Eigen::Matrix<double, 3, 2> B;
+  B.col(0) = t.cross(helper).normalized();
+  B.col(1) = t.cross(B.col(0));
+  return B;
+}
+
+using Vector5d = Eigen::Matrix<double, 5, 1>;
+using Matrix5d = Eigen::Matrix<double, 5, 5>;
+
+/// Motion moved by `d` = (rotation vector applied on the left, 2 tangent steps of unit t).
+Motion perturb(const Motion& m, const Vector5d& d) {
+  Motion out;
+  const Eigen::Vector3d w = d.head<3>();
+  const double angle = w.norm();
+  out.R = angle > 0.0 ? Eigen::Matrix3d(Eigen::AngleAxisd(angle, w / angle) * m.R) : m.R;
+  out.t = (m.t + tangent_basis(m.t) * d.tail<2>()).normalized();
+  return out;
+}
+
+/// Sampson residuals (px) of the epipolar constraint of motion `m` on the listed
+/// correspondences; returns the sum of squares.
+double sampson_residuals(const Motion& m, const Eigen::Matrix3d& Ki,
+                         std::span<const Eigen::Vector2d> uv0, std::span<const Eigen::Vector2d> uv1,
+                         std::span<const std::size_t> idx, Eigen::VectorXd& r) {
+  const Eigen::Matrix3d F = fundamental_from_motion(m, Ki.inverse());
+  for (std::size_t k = 0; k < idx.size(); ++k) {
+    const Eigen::Vector3d x0 = uv0[idx[k]].homogeneous();
+    const Eigen::Vector3d x1 = uv1[idx[k]].homogeneous();
+    const Eigen::Vector3d l1 = F * x0;
+    const Eigen::Vector3d l0 = F.transpose() * x1;
+    const double den = l1.head<2>().squaredNorm() + l0.head<2>().squaredNorm();
+    r(static_cast<Eigen::Index>(k)) = den > 0.0 ? x1.dot(l1) / std::sqrt(den) : 0.0;
+  }
+  return r.squaredNorm();
+}
+
+/// Levenberg-Marquardt on the Sampson error of the inliers over the 5-dof motion (the linear
+/// 8-point F minimizes an algebraic error, biased with noise; this is close to the
+/// maximum-likelihood estimate). Forward-difference Jacobian: 5 extra residual passes per
+/// iteration, cheap next to RANSAC.
+/// 1-sigma uncertainty of a refined motion (from the Gauss-Newton normal matrix).
+struct MotionSigma {
+  double rotation_deg = std::numeric_limits<double>::infinity();
+  double translation_dir_deg = std::numeric_limits<double>::infinity();
+};
+
+MotionSigma refine_motion(Motion& m, std::span<const Eigen::Vector2d> uv0,
+                          std::span<const Eigen::Vector2d> uv1,
+                          std::span<const std::uint8_t> inliers, const Pinhole& K,
+                          double sigma_px) {
+  MotionSigma sigma;
+  std::vector<std::size_t> idx;
+  for (std::size_t i = 0; i < inliers.size(); ++i) {
+    if (inliers[i]) idx.push_back(i);
+  }
+  if (idx.size() < static_cast<std::size_t>(kSampleSize)) return sigma;
+  const Eigen::Matrix3d Ki = k_matrix(K).inverse();
+  const auto n = static_cast<Eigen::Index>(idx.size());
+  Eigen::VectorXd r(n), r_try(n);
+  Eigen::MatrixXd J(n, 5);
+  const auto jacobian = [&] {
+    for (int k = 0; k < 5; ++k) {
+      Vector5d d = Vector5d::Zero();
+      d(k) = kLmJacobianStep;
+      sampson_residuals(perturb(m, d), Ki, uv0, uv1, idx, r_try);
+      J.col(k) = (r_try - r) / kLmJacobianStep;
+    }
+  };
+  double cost = sampson_residuals(m, Ki, uv0, uv1, idx, r);
+  double lambda = kLmInitialDamping;
+  bool converged = false;
+  for (int it = 0; it < kLmMaxIterations && !converged; ++it) {
+    jacobian();
+    const Matrix5d jtj = J.transpose() * J;
+    const Vector5d g = J.transpose() * r;
+    bool improved = false;
+    while (!improved && lambda < kLmMaxDamping) {
+      Matrix5d A = jtj;
+      A.diagonal() *= 1.0 + lambda;
+      const Vector5d d = A.ldlt().solve(-g);
+      const Motion candidate = perturb(m, d);
+      const double c = sampson_residuals(candidate, Ki, uv0, uv1, idx, r_try);
+      if (c < cost) {
+        improved = true;
+        converged = (cost - c) / cost < kLmMinRelativeDecrease;
+        m = candidate;
+        cost = c;
+        r.swap(r_try);
+        lambda *= kLmDampingDown;
+      } else {
+        lambda *= kLmDampingUp;
+      }
+    }
+    converged = converged || !improved;
+  }
+  // Covariance sigma^2 (J^T J)^-1 at the optimum (Sampson residuals have ~ keypoint variance).
+  jacobian();
+  const Matrix5d jtj = J.transpose() * J;
+  const Eigen::FullPivLU<Matrix5d> lu(jtj);
+  if (!lu.isInvertible()) return sigma;
+  const Matrix5d cov = sigma_px * sigma_px * lu.inverse();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es_r(cov.topLeftCorner<3, 3>());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es_t(cov.bottomRightCorner<2, 2>());
+  sigma.rotation_deg = std::sqrt(std::max(es_r.eigenvalues().maxCoeff(), 0.0)) * kRadToDeg;
+  sigma.translation_dir_deg = std::sqrt(std::max(es_t.eigenvalues().maxCoeff(), 0.0)) * kRadToDeg;
+  return sigma;
+}
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+/// Inliers of the best rotation-only model x1 ~ K R K^-1 x0, fitted (orthogonal Procrustes
+/// on bearing vectors) to the homography inliers.
+int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
+                          std::span<const Eigen::Vector2d> uv1,
+                          std::span<const std::uint8_t> inliers_h, const Pinhole& K,
+                          double sigma_px) {
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  for (std::size_t i = 0; i < uv0.size(); ++i) {
+    if (inliers_h[i]) M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
+  }
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
+  const Eigen::Matrix3d R = svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
+  const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
+  int count = 0;
+  for (std::size_t i = 0; i < uv0.size(); ++i) {
+    const Eigen::Vector3d p = R * K.unproject(uv0[i]);
+    if (!(p.z() > 0.0)) continue;
+    if ((K.project(p) - uv1[i]).squaredNorm() * inv_var <= kChi2TwoDof95) ++count;
+  }
+  return count;
+}
+
+/// A refused result: no map (the diagnostics filled so far are kept).
+TwoViewResult refuse(TwoViewResult r, TwoViewRefusal why) {
+  r.ok = false;
+  r.refusal = why;
+  r.T_c1_c0 = SE3d::Identity();
+  r.points_c0.clear();
+  r.triangulated.clear();
+  r.num_triangulated = 0;
+  return r;
+}
+
+}  // namespace
+
+const char* to_string(TwoViewRefusal r) {
+  switch (r) {
+    case TwoViewRefusal::kNone:
+      return "none";
+    case TwoViewRefusal::kTooFewMatches:
+      return "too_few_matches";
+    case TwoViewRefusal::kStatic:
+      return "static";
+    case TwoViewRefusal::kPureRotation:
+      return "pure_rotation";
+    case TwoViewRefusal::kLowParallax:
+      return "low_parallax";
+    case TwoViewRefusal::kTooFewTriangulated:
+      return "too_few_triangulated";
+    case TwoViewRefusal::kAmbiguous:
+      return "ambiguous";
+  }
+  return "unknown";
+}
+
+const char* to_string(TwoViewModel m) {
+  switch (m) {
+    case TwoViewModel::kNone:
+      return "none";
+    case TwoViewModel::kHomography:
+      return "homography";
+    case TwoViewModel::kEssential:
+      return "essential";
+  }
+  return "unknown";
+}
+
+TwoViewModelFit fit_two_view_models(std::span<const Eigen::Vector2d> uv0,
+                                    std::span<const Eigen::Vector2d> uv1, int iterations,
+                                    double sigma_px, std::uint64_t seed) {
+  TwoViewModelFit fit;
+  const std::size_t n = std::min(uv0.size(), uv1.size());
+  fit.inliers_h.assign(n, 0);
+  fit.inliers_f.assign(n, 0);
+  if (uv0.size() != uv1.size() || n < static_cast<std::size_t>(kSampleSize)) return fit;
+  const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
+
+  const Eigen::Matrix3d T0 = hartley_normalization(uv0);
+  const Eigen::Matrix3d T1 = hartley_normalization(uv1);
+  std::vector<Eigen::Vector2d> p0(n);
+  std::vector<Eigen::Vector2d> p1(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    p0[i] = apply(T0, uv0[i]);
+    p1[i] = apply(T1, uv1[i]);
+  }
+
+  std::vector<std::uint8_t> mask(n);
+  SplitMix64 rng(seed);
+  std::array<std::size_t, kSampleSize> idx{};
+  fit.score_h = -1.0;
+  fit.score_f = -1.0;
+  for (int it = 0; it < iterations; ++it) {
+    draw_sample(rng, n, idx);
+    Matrix9d ata_f = Matrix9d::Zero();
+    Matrix9d ata_h = Matrix9d::Zero();
+    for (int k = 0; k < kSampleSize; ++k) {
+      add_rows_fundamental(ata_f, p0[idx[k]], p1[idx[k]]);
+      if (k < kHomographySampleSize) add_rows_homography(ata_h, p0[idx[k]], p1[idx[k]]);
+    }
+    const Eigen::Matrix3d F = solve_fundamental(ata_f, T0, T1);
+    int count = 0;
+    double score = score_fundamental(F, uv0, uv1, inv_var, fit.score_f, mask, count);
+    if (score > fit.score_f) {
+      fit.score_f = score;
+      fit.F = F;
+      fit.num_inliers_f = count;
+      fit.inliers_f.swap(mask);
+    }
+    Eigen::Matrix3d H;
+    if (!solve_homography(ata_h, T0, T1, H)) continue;
+    score = score_homography(H, uv0, uv1, inv_var, fit.score_h, mask, count);
+    if (score > fit.score_h) {
+      fit.score_h = score;
+      fit.H = H;
+      fit.num_inliers_h = count;
+      fit.inliers_h.swap(mask);
+    }
+  }
+
+  // Least-squares refits on the inlier sets (kept only while the score improves).
+  for (int pass = 0; pass < kRefitPasses && fit.num_inliers_f >= kSampleSize; ++pass) {
+    Matrix9d ata = Matrix9d::Zero();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (fit.inliers_f[i]) add_rows_fundamental(ata, p0[i], p1[i]);
+    }
+    const Eigen::Matrix3d F = solve_fundamental(ata, T0, T1);
+    int count = 0;
+    const double score = score_fundamental(F, uv0, uv1, inv_var, fit.score_f, mask, count);
+    if (!(score > fit.score_f)) break;
+    fit.score_f = score;
+    fit.F = F;
+    fit.num_inliers_f = count;
+    fit.inliers_f.swap(mask);
+  }
+  for (int pass = 0; pass < kRefitPasses && fit.num_inliers_h >= kHomographySampleSize; ++pass) {
+    Matrix9d ata = Matrix9d::Zero();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (fit.inliers_h[i]) add_rows_homography(ata, p0[i], p1[i]);
+    }
+    Eigen::Matrix3d H;
+    if (!solve_homography(ata, T0, T1, H)) break;
+    int count = 0;
+    const double score = score_homography(H, uv0, uv1, inv_var, fit.score_h, mask, count);
+    if (!(score > fit.score_h)) break;
+    fit.score_h = score;
+    fit.H = H;
+    fit.num_inliers_h = count;
+    fit.inliers_h.swap(mask);
+  }
+  fit.score_h = std::max(fit.score_h, 0.0);
+  fit.score_f = std::max(fit.score_f, 0.0);
+  return fit;
+}
+
+bool fit_fundamental_8point(std::span<const Eigen::Vector2d> uv0,
+                            std::span<const Eigen::Vector2d> uv1, std::span<const double> weights,
+                            Eigen::Matrix3d& F) {
+  if (uv0.size() != uv1.size() || weights.size() != uv0.size()) return false;
+  const std::size_t used = static_cast<std::size_t>(
+      std::count_if(weights.begin(), weights.end(), [](double w) { return w > 0.0; }));
+  if (used < static_cast<std::size_t>(kSampleSize)) return false;
+  const Eigen::Matrix3d T0 = hartley_normalization(uv0);
+  const Eigen::Matrix3d T1 = hartley_normalization(uv1);
+  Matrix9d ata = Matrix9d::Zero();
+  for (std::size_t i = 0; i < uv0.size(); ++i) {
+    if (weights[i] > 0.0)
+      add_rows_fundamental(ata, apply(T0, uv0[i]), apply(T1, uv1[i]), weights[i]);
+  }
+  F = solve_fundamental(ata, T0, T1);
+  return true;
+}
+
+namespace {
+
+/// Essential fallback for an ambiguous homography: at most this fraction of the F inliers
+/// may lie on the homography's plane.
+constexpr double kEssentialFallbackMaxPlanarFraction = 0.85;
+
+TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
+                               std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
+                               const TwoViewOptions& o, bool force_essential) {
+  TwoViewResult r;
+  const std::size_t n = uv0.size();
+  if (uv1.size() != n || n < static_cast<std::size_t>(std::max(o.min_matches, kSampleSize))) {
+    return refuse(std::move(r), TwoViewRefusal::kTooFewMatches);
+  }
+
+  // 1. Static scene: the camera did not move (or barely).
+  {
+    std::vector<double> disparity(n);
+    for (std::size_t i = 0; i < n; ++i) disparity[i] = (uv1[i] - uv0[i]).norm();
+    r.median_disparity_px = median_of(std::move(disparity));
+  }
+  if (r.median_disparity_px < o.min_median_disparity_px) {
+    return refuse(std::move(r), TwoViewRefusal::kStatic);
+  }
+
+  // 2. Both models, same samples.
+  const TwoViewModelFit fit =
+      fit_two_view_models(uv0, uv1, o.ransac_iterations, o.sigma_px, o.seed);
+  r.score_h = fit.score_h;
+  r.score_f = fit.score_f;
+  const int best_inliers = std::max(fit.num_inliers_h, fit.num_inliers_f);
+  if (best_inliers < o.min_triangulated) {
+    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+  }
+
+  // 3. Pure rotation: the image moved, but a rotation alone explains it. Then F is not
+  //    unique (any F = [e]x H fits) and any "translation" is noise.
+  if (fit.num_inliers_h >= kHomographySampleSize &&
+      rotation_only_inliers(uv0, uv1, fit.inliers_h, K, o.sigma_px) >=
+          kPureRotationInlierFraction * best_inliers) {
+    return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+  }
+
+  // 4. Model selection and motion candidates.
+  const double r_h =
+      fit.score_h / std::max(fit.score_h + fit.score_f, std::numeric_limits<double>::min());
+  const Eigen::Matrix3d Km = k_matrix(K);
+  std::vector<Motion> candidates;
+  std::span<const std::uint8_t> inliers;
+  // The essential fallback needs points off the plane: when the homography explains nearly
+  // all of F's inliers, E is as undetermined as the plane's twin solution.
+  if (force_essential &&
+      fit.num_inliers_h > kEssentialFallbackMaxPlanarFraction * fit.num_inliers_f) {
+    return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+  }
+  if (!force_essential && r_h > o.homography_ratio) {
+    r.model = TwoViewModel::kHomography;
+    r.num_inliers = fit.num_inliers_h;
+    inliers = fit.inliers_h;
+    candidates = decompose_homography(Km.inverse() * fit.H * Km);
+    if (candidates.empty()) return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+  } else {
+    r.model = TwoViewModel::kEssential;
+    r.num_inliers = fit.num_inliers_f;
+    inliers = fit.inliers_f;
+    candidates = decompose_essential(Km.transpose() * fit.F * Km);
+  }
+
+  // 5. Cheirality / reprojection / parallax vote.
+  std::size_t best = 0;
+  std::vector<CandidateCheck> checks;
+  checks.reserve(candidates.size());
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    checks.push_back(check_candidate(candidates[k], uv0, uv1, inliers, K, o, nullptr, nullptr));
+    const auto key = [](const CandidateCheck& c) { return std::pair(c.good, c.consistent); };
+    if (key(checks[k]) > key(checks[best])) best = k;
+  }
+  r.median_parallax_deg = median_of(checks[best].parallax_deg);
+  if (r.median_parallax_deg < o.min_parallax_deg) {
+    return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+  }
+  if (checks[best].good < o.min_triangulated) {
+    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+  }
+  // Ambiguity: another candidate with nearly as many good points that also agrees with
+  // (almost) all of the winner's good points. A candidate that puts a fraction of the
+  // winner's well-triangulated points behind a camera or off their pixels is refuted by them
+  // (they are model inliers; chance outliers among them are rare), e.g. the twin solution of
+  // a homography whose virtual plane crosses the field of view.
+  for (std::size_t k = 0; k < checks.size(); ++k) {
+    if (k == best || checks[k].good <= o.ambiguity_ratio * checks[best].good) continue;
+    int refuted = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if ((checks[best].status[i] & kGood) && !(checks[k].status[i] & kConsistent)) ++refuted;
+    }
+    if (refuted < kMinRefutedFraction * checks[best].good) {
+      return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+    }
+  }
+
+  // 6. Essential model: refine the winning motion on the Sampson error (the 8-point F is an
+  //    algebraic fit, and its inlier set was gated with that biased F), re-gate all
+  //    correspondences with the refined motion and repeat until the inlier set settles
+  //    (local optimization, as in LO-RANSAC). The homography is kept as decomposed: its DLT
+  //    fit on a plane is already constrained by every inlier in both images.
+  std::vector<std::uint8_t> refined_inliers;
+  if (r.model == TwoViewModel::kEssential) {
+    const double inv_var = 1.0 / (kResidualVarianceFactor * o.sigma_px * o.sigma_px);
+    refined_inliers.assign(inliers.begin(), inliers.end());
+    std::vector<std::uint8_t> mask(n);
+    for (int round = 0; round < kLocalOptimizationRounds; ++round) {
+      const MotionSigma sig =
+          refine_motion(candidates[best], uv0, uv1, refined_inliers, K, o.sigma_px);
+      r.rotation_sigma_deg = sig.rotation_deg;
+      r.translation_dir_sigma_deg = sig.translation_dir_deg;
+      int count = 0;
+      score_fundamental(fundamental_from_motion(candidates[best], Km), uv0, uv1, inv_var,
+                        -std::numeric_limits<double>::infinity(), mask, count);
+      if (mask == refined_inliers) break;
+      refined_inliers.swap(mask);
+      r.num_inliers = count;
+    }
+    inliers = refined_inliers;
+  }
+
+  // 7. Map of the winner, scaled to median depth 1 in camera 0.
+  r.points_c0.assign(n, Eigen::Vector3d::Zero());
+  r.triangulated.assign(n, 0);
+  const CandidateCheck final_check =
+      check_candidate(candidates[best], uv0, uv1, inliers, K, o, &r.points_c0, &r.triangulated);
+  r.num_triangulated = final_check.good;
+  // The refined motion and the DLT points must pass the same tests as the vote.
+  r.median_parallax_deg = median_of(final_check.parallax_deg);
+  if (r.median_parallax_deg < o.min_parallax_deg) {
+    return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+  }
+  if (final_check.good < o.min_triangulated) {
+    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+  }
+  std::vector<double> depths;
+  depths.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (r.triangulated[i]) depths.push_back(r.points_c0[i].z());
+  }
+  const double scale = 1.0 / median_of(std::move(depths));
+  for (std::size_t i = 0; i < n; ++i) {
+    if (r.triangulated[i]) r.points_c0[i] *= scale;
+  }
+  r.T_c1_c0 = SE3d::Identity();
+  r.T_c1_c0.linear() = candidates[best].R;
+  r.T_c1_c0.translation() = candidates[best].t * scale;
+  r.ok = true;
+  return r;
+}
+
+}  // namespace
+
+TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
+                                   std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
+                                   const TwoViewOptions& o) {
+  TwoViewResult r = reconstruct_impl(uv0, uv1, K, o, false);
+  // A homography preferred by the scores can still be ambiguous (a dominant plane seen
+  // under forward-ish motion has two physically valid decompositions) while the points off
+  // the plane (boxes in front of a wall, another wall) pin down the essential matrix: try
+  // the essential model before refusing. Its own checks (parallax, cheirality, ambiguity)
+  // still apply, so a truly degenerate pair is refused either way.
+  if (!r.ok && r.model == TwoViewModel::kHomography &&
+      (r.refusal == TwoViewRefusal::kAmbiguous ||
+       r.refusal == TwoViewRefusal::kTooFewTriangulated)) {
+    TwoViewResult e = reconstruct_impl(uv0, uv1, K, o, true);
+    if (e.ok) return e;
+  }
+  return r;
+}
+
+}  // namespace mer::geometry

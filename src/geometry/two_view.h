@@ -1,0 +1,171 @@
+#pragma once
+/// @file two_view.h
+/// Monocular map initialization from two views (after ORB-SLAM, Mur-Artal et al. 2015,
+/// sec. IV): a homography H and a fundamental matrix F are fitted by RANSAC in parallel on
+/// the same samples (Hartley-normalized 4-point DLT for H, 8-point for F), scored by their
+/// truncated symmetric transfer errors (chi2 gates at 95 %), and one is selected with
+/// R_H = S_H / (S_H + S_F) (H above homography_ratio). The selected model is decomposed into
+/// motion candidates (Faugeras-Lustman SVD method for H: 8 candidates; E = K^T F K: 4
+/// candidates); the candidate that triangulates the most inliers in front of both cameras with
+/// a small reprojection error and enough parallax wins. The essential model's motion is then
+/// refined (Levenberg-Marquardt on the Sampson error, re-gating the inliers).
+///
+/// Refusals (TwoViewRefusal) instead of a wrong map:
+/// - static: median disparity below min_median_disparity_px;
+/// - pure rotation: a rotation-only model (fitted to the homography inliers) explains >= 70 %
+///   of the best model's inliers, whatever the rotation angle;
+/// - low parallax: median parallax of the consistent points below min_parallax_deg;
+/// - ambiguous: a second candidate has >= ambiguity_ratio of the winner's good points and is
+///   not refuted by them (fewer than 5 % of them behind its cameras or off their pixels),
+///   e.g. the two-fold homography ambiguity of a plane under forward motion.
+///
+/// Scoring note: ORB-SLAM offsets both scores by the 2-dof chi2 threshold, which makes a
+/// correct F out-score a correct H even on a plane (a point-to-line residual is smaller than
+/// a point-to-point one). Here F's offset is one less (the difference of the expected chi2),
+/// so R_H ~ 0.5 on planes and ~0.1-0.3 on general scenes, and residuals are normalized by the
+/// variance of a two-image residual (2 sigma^2).
+///
+/// Only used during initialization: allocates; ~6 ms CPU for 1000 matches (x86, Release).
+
+#include <cstdint>
+#include <limits>
+#include <span>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/options.h"
+#include "core/pose.h"
+#include "geometry/camera_model.h"
+
+namespace mer::geometry {
+
+/// Options of the two-view initializer (config section `tracking.init`).
+struct TwoViewOptions {
+  int ransac_iterations = 200;  ///< RANSAC iterations (shared by the H and F hypotheses)
+  double sigma_px = 1.0;        ///< keypoint noise sigma for chi2 thresholds, px
+  double min_parallax_deg =
+      1.0;                    ///< median parallax needed (refuses pure rotation, tiny baselines)
+  int min_matches = 100;      ///< fewer correspondences -> refuse
+  int min_triangulated = 50;  ///< fewer good 3D points -> refuse
+  double min_median_disparity_px = 8.0;  ///< below -> static scene / no motion, refuse
+  double homography_ratio = 0.45;        ///< R_H above -> homography model
+  double min_point_parallax_deg = 0.5;   ///< points seen under less parallax are not kept
+  double ambiguity_ratio = 0.7;  ///< a 2nd candidate with this fraction of the winner's good
+                                 ///< points, not refuted by them -> ambiguous, refuse
+  std::uint64_t seed = 1;        ///< RANSAC random seed (deterministic runs)
+
+  template <class V>
+  void visit(V& v) {
+    v.field("ransac_iterations", ransac_iterations,
+            "RANSAC iterations, each testing one homography and one fundamental hypothesis",
+            options::Range<int>{1, 100000});
+    v.field("sigma_px", sigma_px, "keypoint position noise (1 sigma) for chi2 thresholds, px",
+            options::Range<double>{0.01, 100.0});
+    v.field("min_parallax_deg", min_parallax_deg,
+            "median parallax of the triangulated points needed to initialize, deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("min_matches", min_matches, "fewer correspondences: refuse to initialize",
+            options::Range<int>{8, 1000000});
+    v.field("min_triangulated", min_triangulated,
+            "fewer well-triangulated points: refuse to initialize",
+            options::Range<int>{1, 1000000});
+    v.field("min_median_disparity_px", min_median_disparity_px,
+            "median image motion below this: static scene, refuse, px",
+            options::Range<double>{0.0, 10000.0});
+    v.field("homography_ratio", homography_ratio,
+            "R_H = S_H / (S_H + S_F) above this selects the homography model",
+            options::Range<double>{0.0, 1.0});
+    v.field("min_point_parallax_deg", min_point_parallax_deg,
+            "points triangulated under less parallax are not kept in the map, deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("ambiguity_ratio", ambiguity_ratio,
+            "refuse when another motion candidate has this fraction of the winner's good points "
+            "(unless those points refute it)",
+            options::Range<double>{0.0, 1.0});
+    // The YAML layer reads signed 64-bit integers: go through one (seeds are small).
+    std::int64_t seed_value = static_cast<std::int64_t>(seed);
+    v.field("seed", seed_value, "RANSAC random seed",
+            options::Range<std::int64_t>{0, std::numeric_limits<std::int64_t>::max()});
+    seed = static_cast<std::uint64_t>(seed_value);
+  }
+};
+
+/// Model used for the reconstruction.
+enum class TwoViewModel : std::uint8_t { kNone, kHomography, kEssential };
+
+/// Why the initializer refused the pair.
+enum class TwoViewRefusal : std::uint8_t {
+  kNone,                ///< accepted
+  kTooFewMatches,       ///< fewer than min_matches correspondences (or mismatched inputs)
+  kStatic,              ///< median disparity below min_median_disparity_px
+  kPureRotation,        ///< a rotation alone explains the motion: no baseline
+  kLowParallax,         ///< median parallax below min_parallax_deg
+  kTooFewTriangulated,  ///< fewer than min_triangulated good points (or model inliers)
+  kAmbiguous,           ///< two motion candidates explain the data about equally well
+};
+
+/// Short name of a refusal reason ("pure_rotation", ...).
+const char* to_string(TwoViewRefusal r);
+/// Short name of a model ("homography", ...).
+const char* to_string(TwoViewModel m);
+
+/// Result of reconstruct_two_view. On refusal (ok == false) there is no map: T_c1_c0 is the
+/// identity, points_c0 / triangulated are empty; the diagnostics computed before the refusal
+/// (disparity, scores, parallax, model) are kept.
+struct TwoViewResult {
+  bool ok = false;
+  TwoViewModel model = TwoViewModel::kNone;
+  TwoViewRefusal refusal = TwoViewRefusal::kNone;
+  /// Second camera from first; scaled so that the median depth of the triangulated points
+  /// in camera 0 is 1.
+  SE3d T_c1_c0 = SE3d::Identity();
+  std::vector<Eigen::Vector3d> points_c0;  ///< per correspondence, camera-0 frame (valid where
+                                           ///< triangulated[i]; zero elsewhere)
+  std::vector<std::uint8_t> triangulated;  ///< per correspondence: 1 = good 3D point
+  int num_inliers = 0;                     ///< inliers of the selected model
+  int num_triangulated = 0;                ///< good 3D points
+  double median_parallax_deg = 0;          ///< over points in front with small reprojection error
+  double median_disparity_px = 0;          ///< median |uv1 - uv0| over all correspondences
+  double score_h = 0;                      ///< RANSAC score of the homography
+  double score_f = 0;                      ///< RANSAC score of the fundamental matrix
+  double rotation_sigma_deg = 0;           ///< 1-sigma rotation uncertainty (essential model)
+  double translation_dir_sigma_deg = 0;    ///< 1-sigma translation direction uncertainty (ditto)
+};
+
+/// Monocular initialization from pixel correspondences uv0[i] <-> uv1[i] (undistorted
+/// images of one pinhole camera K). Deterministic for a given seed.
+TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
+                                   std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
+                                   const TwoViewOptions& o);
+
+// ---- Building blocks (also used by self_calibration) --------------------------------------
+
+/// Homography and fundamental matrix fitted by RANSAC on the same samples, each then refitted
+/// on its inliers. Pixel coordinates: x1 ~ H x0 and x1^T F x0 = 0 with x = (u, v, 1).
+struct TwoViewModelFit {
+  Eigen::Matrix3d H = Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d F = Eigen::Matrix3d::Zero();  ///< rank 2
+  std::vector<std::uint8_t> inliers_h;          ///< per correspondence
+  std::vector<std::uint8_t> inliers_f;          ///< per correspondence
+  int num_inliers_h = 0;
+  int num_inliers_f = 0;
+  double score_h = 0;  ///< sum over inliers of (chi2 threshold - chi2), both directions
+  double score_f = 0;  ///< same for F, with the H threshold as offset (comparable with score_h)
+};
+
+/// Fits both models (needs >= 8 correspondences, else returns zero inliers). `sigma_px` sets
+/// the chi2 thresholds (95 %: 5.99 sigma^2 per image for H, 3.84 sigma^2 for F).
+TwoViewModelFit fit_two_view_models(std::span<const Eigen::Vector2d> uv0,
+                                    std::span<const Eigen::Vector2d> uv1, int iterations,
+                                    double sigma_px, std::uint64_t seed);
+
+/// Least-squares 8-point fundamental matrix on pixel coordinates (Hartley normalization, rank
+/// 2 enforced), each correspondence weighted by weights[i] (0: unused; e.g. an inlier mask or
+/// bootstrap counts). False when fewer than 8 correspondences have weight > 0 or the sizes
+/// differ.
+bool fit_fundamental_8point(std::span<const Eigen::Vector2d> uv0,
+                            std::span<const Eigen::Vector2d> uv1, std::span<const double> weights,
+                            Eigen::Matrix3d& F);
+
+}  // namespace mer::geometry

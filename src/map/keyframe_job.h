@@ -1,0 +1,48 @@
+#pragma once
+/// @file keyframe_job.h
+/// What the tracking stage hands to keyframe creation (depth inference + map insertion)
+/// when it decides a frame becomes a keyframe. Slots are preallocated for the largest
+/// frame; the tracker copies into them, so handing a job over never allocates.
+
+#include <cstdint>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+#include "core/pose.h"
+#include "features/keypoint.h"
+#include "geometry/camera_model.h"
+
+namespace mer::map {
+
+/// One keyframe to create.
+struct KeyframeJob {
+  std::uint64_t seq = 0;                      ///< frame sequence number
+  std::int64_t t_ns = 0;                      ///< frame timestamp, ns
+  SE3d T_w_c = SE3d::Identity();              ///< tracked camera-to-world pose
+  geometry::Pinhole K;                        ///< intrinsics the frame was tracked with
+  int num_keypoints = 0;                      ///< valid entries in the arrays below
+  std::uint8_t reason = 0;                    ///< frontend::KeyframeReason that fired (for logs)
+  std::vector<features::Keypoint> keypoints;  ///< capacity = max keypoints
+  std::vector<features::Descriptor> descriptors;  ///< one per keypoint
+  std::vector<std::uint32_t> point_ids;           ///< tracked map point per keypoint, or kNoId
+  std::vector<float> sensor_depth;                ///< sensor depth at keypoints (m, 0 = none)
+  bool has_sensor_depth = false;                  ///< sensor_depth is filled (RGB-D)
+  bool has_ground_truth = false;                  ///< the source knew the true pose (diagnostics)
+  SE3d T_w_c_gt = SE3d::Identity();               ///< true pose when has_ground_truth
+  cv::Mat gray;                                   ///< copy of the image (dense backends)
+
+  /// Sizes every buffer for `max_keypoints` keypoints and `width` x `height` images.
+  void reserve(int max_keypoints, int width, int height) {
+    const auto n = static_cast<std::size_t>(max_keypoints);
+    keypoints.resize(n);
+    descriptors.resize(n);
+    point_ids.resize(n);
+    sensor_depth.resize(n);
+    gray.create(height, width, CV_8UC1);
+  }
+  /// Keypoints this job can hold.
+  int capacity() const { return static_cast<int>(keypoints.size()); }
+};
+
+}  // namespace mer::map

@@ -1,0 +1,568 @@
+#include "map/map.h"
+
+#include <algorithm>
+#include <climits>
+#include <cmath>
+#include <string>
+
+namespace mer::map {
+namespace {
+
+constexpr std::uint32_t kWeightMask = 0xFFFFFFFFu;
+
+std::uint64_t pack_edge(const CovisibleKeyframe& e) noexcept {
+  return (static_cast<std::uint64_t>(e.id) << 32U) | e.weight;
+}
+CovisibleKeyframe unpack_edge(std::uint64_t w) noexcept {
+  return {static_cast<KeyframeId>(w >> 32U), static_cast<std::uint32_t>(w & kWeightMask)};
+}
+/// Edge order: weight descending, then id ascending (deterministic).
+bool stronger(const CovisibleKeyframe& a, const CovisibleKeyframe& b) noexcept {
+  return a.weight != b.weight ? a.weight > b.weight : a.id < b.id;
+}
+
+std::uint32_t as_u32(int v) noexcept {
+  return static_cast<std::uint32_t>(v);
+}
+
+}  // namespace
+
+Map::Map(const MapOptions& opts)
+    : opts_(effective_options(opts)),
+      max_kf_(as_u32(opts_.max_keyframes)),
+      max_pts_(as_u32(opts_.max_points)),
+      max_kp_(as_u32(opts_.max_keypoints_per_keyframe)),
+      max_obs_(as_u32(opts_.max_observations_per_point)),
+      max_cov_(as_u32(opts_.max_covisible_per_keyframe)),
+      kfs_(std::make_unique<KeyframeSlot[]>(max_kf_)),
+      kf_keypoints_(std::make_unique<features::Keypoint[]>(std::size_t{max_kf_} * max_kp_)),
+      kf_descriptors_(std::make_unique<features::Descriptor[]>(std::size_t{max_kf_} * max_kp_)),
+      kf_points_(std::make_unique<std::atomic<PointId>[]>(std::size_t{max_kf_} * max_kp_)),
+      kf_depth_(std::make_unique<std::atomic<float>[]>(std::size_t{max_kf_} * max_kp_)),
+      kf_depth_conf_(std::make_unique<std::atomic<float>[]>(std::size_t{max_kf_} * max_kp_)),
+      covis_(std::make_unique<std::atomic<std::uint64_t>[]>(std::size_t{max_kf_} * max_cov_)),
+      points_(std::make_unique<PointSlot[]>(max_pts_)),
+      grid_(opts_.cell_size, as_u32(opts_.cell_table_size), as_u32(opts_.points_per_cell)),
+      obs_(std::make_unique<Observation[]>(std::size_t{max_pts_} * max_obs_)),
+      obs_count_(std::make_unique<std::uint8_t[]>(max_pts_)),
+      point_cell_(std::make_unique<CellKey[]>(max_pts_)),
+      covis_weight_(std::make_unique<std::uint32_t[]>(max_kf_)),
+      covis_touched_(std::make_unique<KeyframeId[]>(max_kf_)),
+      covis_sorted_(std::make_unique<CovisibleKeyframe[]>(max_kf_)),
+      list_scratch_(std::make_unique<CovisibleKeyframe[]>(max_cov_ + 1U)),
+      medoid_dist_(std::make_unique<int[]>(std::size_t{max_obs_} * max_obs_)),
+      medoid_row_(std::make_unique<int[]>(max_obs_)) {
+  const std::size_t n_kp = std::size_t{max_kf_} * max_kp_;
+  for (std::size_t i = 0; i < n_kp; ++i) kf_points_[i].store(kNoId, std::memory_order_relaxed);
+  std::fill_n(point_cell_.get(), max_pts_, kNoCell);
+}
+
+// ---- writer ------------------------------------------------------------------------------
+
+bool Map::valid_keypoint(KeyframeId kf, std::uint32_t kp) const noexcept {
+  return kf < num_keyframes() && kp < kfs_[kf].num_keypoints;
+}
+
+bool Map::own_point(PointId p) const noexcept {
+  return p < num_points_.load(std::memory_order_relaxed) &&
+         points_[p].bad.load(std::memory_order_relaxed) == 0U;
+}
+
+SE3d Map::decode_pose(const std::uint64_t (&w)[kPoseWords]) noexcept {
+  SE3d T = SE3d::Identity();
+  for (int i = 0; i < 9; ++i) T.linear()(i % 3, i / 3) = unpack_double(w[kPoseRotation + i]);
+  for (int i = 0; i < 3; ++i) T.translation()[i] = unpack_double(w[kPoseTranslation + i]);
+  return T;
+}
+
+void Map::decode_point(const std::uint64_t (&w)[kPointWords], PointView& out) noexcept {
+  for (int i = 0; i < 3; ++i) out.p_w[i] = unpack_double(w[kPointPosition + i]);
+  for (std::size_t i = 0; i < out.descriptor.size(); ++i) {
+    out.descriptor[i] = w[kPointDescriptor + static_cast<int>(i)];
+  }
+  out.normal = {low_float(w[kPointNormalXY]), high_float(w[kPointNormalXY]),
+                low_float(w[kPointNormalZMin])};
+  out.min_distance = high_float(w[kPointNormalZMin]);
+  out.max_distance = low_float(w[kPointMax]);
+}
+
+SE3d Map::own_pose(KeyframeId kf) const noexcept {
+  std::uint64_t w[kPoseWords];
+  for (int i = 0; i < kPoseWords; ++i) w[i] = load_own(kfs_[kf].pose[i]);
+  return decode_pose(w);
+}
+
+Eigen::Vector3d Map::own_position(PointId p) const noexcept {
+  const auto& w = points_[p].words;
+  Eigen::Vector3d p_w;
+  for (int i = 0; i < 3; ++i) p_w[i] = unpack_double(load_own(w[kPointPosition + i]));
+  return p_w;
+}
+
+void Map::write_pose(KeyframeId kf, const SE3d& T_w_c, double scale) noexcept {
+  KeyframeSlot& s = kfs_[kf];
+  s.pose_lock.write_begin();
+  for (int i = 0; i < 9; ++i) {
+    store_payload(s.pose[kPoseRotation + i], pack_double(T_w_c.linear()(i % 3, i / 3)));
+  }
+  for (int i = 0; i < 3; ++i) {
+    store_payload(s.pose[kPoseTranslation + i], pack_double(T_w_c.translation()[i]));
+  }
+  store_payload(s.pose[kPoseScale], pack_double(scale));
+  s.pose_lock.write_end();
+}
+
+void Map::write_position(PointId p, const Eigen::Vector3d& p_w) noexcept {
+  PointSlot& s = points_[p];
+  s.lock.write_begin();
+  for (int i = 0; i < 3; ++i) store_payload(s.words[kPointPosition + i], pack_double(p_w[i]));
+  s.lock.write_end();
+}
+
+void Map::write_shape(PointId p, const features::Descriptor& d, const Eigen::Vector3d& normal,
+                      float min_d, float max_d) noexcept {
+  PointSlot& s = points_[p];
+  s.lock.write_begin();
+  for (std::size_t i = 0; i < d.size(); ++i) {
+    store_payload(s.words[kPointDescriptor + static_cast<int>(i)], d[i]);
+  }
+  const Eigen::Vector3f n = normal.cast<float>();
+  store_payload(s.words[kPointNormalXY], pack_floats(n.x(), n.y()));
+  store_payload(s.words[kPointNormalZMin], pack_floats(n.z(), min_d));
+  store_payload(s.words[kPointMax], pack_floats(max_d, 0.0F));
+  s.lock.write_end();
+}
+
+void Map::shape_from_ref(PointId p, const Eigen::Vector3d& p_w, Eigen::Vector3d& normal,
+                         float& min_d, float& max_d) const noexcept {
+  const PointSlot& s = points_[p];
+  const Eigen::Vector3d ray = p_w - own_pose(s.ref_kf).translation();
+  const double dist = ray.norm();
+  const float level_scale = kf_keypoints_[kp_index(s.ref_kf, s.ref_kp)].scale;
+  max_d = static_cast<float>(dist * static_cast<double>(level_scale));
+  min_d = static_cast<float>(static_cast<double>(max_d) / opts_.distance_scale_range);
+  if (normal.squaredNorm() == 0.0 && dist > 0.0) normal = ray / dist;
+}
+
+Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
+  const std::uint32_t id = num_keyframes_.load(std::memory_order_relaxed);
+  if (id >= max_kf_) {
+    return runtime_error("map full: " + std::to_string(max_kf_) +
+                         " keyframes (raise map.max_keyframes)");
+  }
+  const std::size_t n = in.keypoints.size();
+  if (n > max_kp_) {
+    return invalid_argument(
+        "keyframe has " + std::to_string(n) +
+        " keypoints, more than map.max_keypoints_per_keyframe = " + std::to_string(max_kp_));
+  }
+  if (in.descriptors.size() != n || (!in.depth.empty() && in.depth.size() != n) ||
+      (!in.depth_confidence.empty() && in.depth_confidence.size() != n)) {
+    return invalid_argument("keyframe: " + std::to_string(n) + " keypoints but " +
+                            std::to_string(in.descriptors.size()) + " descriptors, " +
+                            std::to_string(in.depth.size()) + " depths, " +
+                            std::to_string(in.depth_confidence.size()) + " confidences");
+  }
+  if (!in.T_w_c.matrix().allFinite()) return invalid_argument("keyframe: non-finite pose");
+
+  KeyframeSlot& s = kfs_[id];
+  s.seq = in.seq;
+  s.t_ns = in.t_ns;
+  s.num_keypoints = static_cast<std::uint32_t>(n);
+  const std::size_t base = kp_index(id, 0);
+  std::copy(in.keypoints.begin(), in.keypoints.end(), &kf_keypoints_[base]);
+  std::copy(in.descriptors.begin(), in.descriptors.end(), &kf_descriptors_[base]);
+  for (std::size_t i = 0; i < n; ++i) {
+    kf_points_[base + i].store(kNoId, std::memory_order_relaxed);
+    kf_depth_[base + i].store(in.depth.empty() ? 0.0F : in.depth[i], std::memory_order_relaxed);
+    kf_depth_conf_[base + i].store(in.depth_confidence.empty() ? 0.0F : in.depth_confidence[i],
+                                   std::memory_order_relaxed);
+  }
+  write_pose(id, in.T_w_c, 1.0);
+  s.covis_count.store(0, std::memory_order_relaxed);
+  num_keyframes_.store(id + 1U, std::memory_order_release);
+  return id;
+}
+
+Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
+                               std::uint32_t ref_kp) {
+  const std::uint32_t id = num_points_.load(std::memory_order_relaxed);
+  if (id >= max_pts_) {
+    return runtime_error("map full: " + std::to_string(max_pts_) +
+                         " points (raise map.max_points)");
+  }
+  if (!valid_keypoint(ref_kf, ref_kp)) {
+    return invalid_argument("add_point: unknown keyframe " + std::to_string(ref_kf) +
+                            " / keypoint " + std::to_string(ref_kp));
+  }
+  std::atomic<PointId>& assoc = kf_points_[kp_index(ref_kf, ref_kp)];
+  if (load_own(assoc) != kNoId) {
+    return invalid_argument("add_point: keypoint " + std::to_string(ref_kp) + " of keyframe " +
+                            std::to_string(ref_kf) + " already has a point");
+  }
+  if (!p_w.allFinite()) return invalid_argument("add_point: non-finite position");
+
+  PointSlot& s = points_[id];
+  s.ref_kf = ref_kf;
+  s.ref_kp = ref_kp;
+  s.bad.store(0, std::memory_order_relaxed);
+  write_position(id, p_w);
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+  float min_d = 0.0F;
+  float max_d = 0.0F;
+  shape_from_ref(id, p_w, normal, min_d, max_d);
+  write_shape(id, kf_descriptors_[kp_index(ref_kf, ref_kp)], normal, min_d, max_d);
+  obs_[std::size_t{id} * max_obs_] = Observation::make(ref_kf, ref_kp);
+  obs_count_[id] = 1;
+  num_points_.store(id + 1U, std::memory_order_release);
+
+  assoc.store(id, std::memory_order_release);
+  const CellKey key = grid_.key_of(p_w);
+  point_cell_[id] = grid_.insert(id, key) ? key : kNoCell;
+  return id;
+}
+
+bool Map::add_observation(PointId p, KeyframeId kf, std::uint32_t kp) {
+  if (!own_point(p) || !valid_keypoint(kf, kp)) return false;
+  std::atomic<PointId>& assoc = kf_points_[kp_index(kf, kp)];
+  if (load_own(assoc) != kNoId) return false;
+  const std::uint32_t n = obs_count_[p];
+  if (n >= max_obs_) return false;
+  Observation* o = &obs_[std::size_t{p} * max_obs_];
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (o[i].kf() == kf) return false;
+  }
+  o[n] = Observation::make(kf, kp);
+  obs_count_[p] = static_cast<std::uint8_t>(n + 1U);
+  assoc.store(p, std::memory_order_release);
+  return true;
+}
+
+void Map::update_point(PointId p) {
+  if (!own_point(p)) return;
+  const std::uint32_t n = obs_count_[p];
+  if (n == 0) return;
+  const Observation* o = &obs_[std::size_t{p} * max_obs_];
+
+  // Medoid under Hamming: least median distance to all observation descriptors (the
+  // median taken over the row including the zero self-distance, as ORB-SLAM does).
+  int* dist = medoid_dist_.get();
+  for (std::uint32_t i = 0; i < n; ++i) {
+    dist[i * n + i] = 0;
+    const features::Descriptor& di = kf_descriptors_[kp_index(o[i].kf(), o[i].kp())];
+    for (std::uint32_t j = i + 1; j < n; ++j) {
+      const int d = features::hamming(di, kf_descriptors_[kp_index(o[j].kf(), o[j].kp())]);
+      dist[i * n + j] = d;
+      dist[j * n + i] = d;
+    }
+  }
+  std::uint32_t best = 0;
+  int best_median = INT_MAX;
+  int* row = medoid_row_.get();
+  const std::uint32_t mid = (n - 1U) / 2U;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    std::copy_n(&dist[i * n], n, row);
+    std::nth_element(row, row + mid, row + n);
+    if (row[mid] < best_median) {
+      best_median = row[mid];
+      best = i;
+    }
+  }
+
+  const Eigen::Vector3d p_w = own_position(p);
+  Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d ray = p_w - own_pose(o[i].kf()).translation();
+    const double len = ray.norm();
+    if (len > 0.0) normal += ray / len;
+  }
+  const double len = normal.norm();
+  normal = len > 0.0 ? Eigen::Vector3d(normal / len) : Eigen::Vector3d::Zero();
+  float min_d = 0.0F;
+  float max_d = 0.0F;
+  shape_from_ref(p, p_w, normal, min_d, max_d);
+  write_shape(p, kf_descriptors_[kp_index(o[best].kf(), o[best].kp())], normal, min_d, max_d);
+}
+
+void Map::set_point_position(PointId p, const Eigen::Vector3d& p_w) {
+  if (!own_point(p) || !p_w.allFinite()) return;
+  write_position(p, p_w);
+  const CellKey key = grid_.key_of(p_w);
+  if (key == point_cell_[p]) return;
+  point_cell_[p] = grid_.move(p, point_cell_[p], key) ? key : kNoCell;
+}
+
+void Map::set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale) {
+  if (kf >= num_keyframes_.load(std::memory_order_relaxed)) return;
+  if (!T_w_c.matrix().allFinite() || !std::isfinite(scale)) return;
+  write_pose(kf, T_w_c, scale);
+}
+
+void Map::set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence) {
+  if (!valid_keypoint(kf, kp)) return;
+  kf_depth_[kp_index(kf, kp)].store(depth, std::memory_order_relaxed);
+  kf_depth_conf_[kp_index(kf, kp)].store(confidence, std::memory_order_relaxed);
+}
+
+void Map::set_point_bad(PointId p) {
+  if (!own_point(p)) return;
+  points_[p].bad.store(1, std::memory_order_release);
+  grid_.remove(p, point_cell_[p]);
+  point_cell_[p] = kNoCell;
+  const Observation* o = &obs_[std::size_t{p} * max_obs_];
+  for (std::uint32_t i = 0; i < obs_count_[p]; ++i) {
+    std::atomic<PointId>& assoc = kf_points_[kp_index(o[i].kf(), o[i].kp())];
+    if (load_own(assoc) == p) assoc.store(kNoId, std::memory_order_release);
+  }
+  obs_count_[p] = 0;
+}
+
+std::uint32_t Map::own_covis(KeyframeId kf, CovisibleKeyframe* out) const noexcept {
+  const std::uint32_t n = load_own(kfs_[kf].covis_count);
+  const std::size_t base = std::size_t{kf} * max_cov_;
+  for (std::uint32_t i = 0; i < n; ++i) out[i] = unpack_edge(load_own(covis_[base + i]));
+  return n;
+}
+
+void Map::write_covis(KeyframeId kf, const CovisibleKeyframe* list, std::uint32_t n) noexcept {
+  KeyframeSlot& s = kfs_[kf];
+  const std::size_t base = std::size_t{kf} * max_cov_;
+  s.covis_lock.write_begin();
+  for (std::uint32_t i = 0; i < n; ++i) store_payload(covis_[base + i], pack_edge(list[i]));
+  store_payload(s.covis_count, n);
+  s.covis_lock.write_end();
+}
+
+void Map::upsert_edge(KeyframeId owner, KeyframeId other, std::uint32_t weight) noexcept {
+  CovisibleKeyframe* list = list_scratch_.get();
+  std::uint32_t n = own_covis(owner, list);
+  const CovisibleKeyframe edge{other, weight};
+  CovisibleKeyframe* it =
+      std::find_if(list, list + n, [&](const CovisibleKeyframe& e) { return e.id == other; });
+  if (it != list + n) {
+    if (it->weight == weight) return;
+    it->weight = weight;
+  } else if (n < max_cov_) {
+    list[n++] = edge;
+  } else if (stronger(edge, list[n - 1U])) {
+    list[n - 1U] = edge;
+  } else {
+    return;
+  }
+  std::sort(list, list + n, stronger);
+  write_covis(owner, list, n);
+}
+
+void Map::remove_edge(KeyframeId owner, KeyframeId other) noexcept {
+  CovisibleKeyframe* list = list_scratch_.get();
+  const std::uint32_t n = own_covis(owner, list);
+  CovisibleKeyframe* end =
+      std::remove_if(list, list + n, [&](const CovisibleKeyframe& e) { return e.id == other; });
+  const auto m = static_cast<std::uint32_t>(end - list);
+  if (m != n) write_covis(owner, list, m);
+}
+
+void Map::update_covisibility(KeyframeId kf) {
+  if (kf >= num_keyframes_.load(std::memory_order_relaxed)) return;
+  // Shared points with every other keyframe (each point observes a keyframe at most once).
+  std::uint32_t* weight = covis_weight_.get();
+  std::uint32_t touched = 0;
+  const std::uint32_t nkp = kfs_[kf].num_keypoints;
+  for (std::uint32_t kp = 0; kp < nkp; ++kp) {
+    const PointId p = load_own(kf_points_[kp_index(kf, kp)]);
+    if (p == kNoId || !own_point(p)) continue;
+    const Observation* o = &obs_[std::size_t{p} * max_obs_];
+    for (std::uint32_t i = 0; i < obs_count_[p]; ++i) {
+      if (o[i].kf() == kf) continue;
+      if (weight[o[i].kf()]++ == 0U) covis_touched_[touched++] = o[i].kf();
+    }
+  }
+  // Former neighbours that share nothing now lose their edge to kf.
+  const std::uint32_t n_old = load_own(kfs_[kf].covis_count);
+  for (std::uint32_t i = 0; i < n_old; ++i) {
+    const CovisibleKeyframe e = unpack_edge(load_own(covis_[std::size_t{kf} * max_cov_ + i]));
+    if (weight[e.id] == 0U) remove_edge(e.id, kf);
+  }
+  CovisibleKeyframe* sorted = covis_sorted_.get();
+  for (std::uint32_t i = 0; i < touched; ++i) {
+    const KeyframeId other = covis_touched_[i];
+    sorted[i] = {other, weight[other]};
+    weight[other] = 0;
+  }
+  std::sort(sorted, sorted + touched, stronger);
+  write_covis(kf, sorted, std::min(touched, max_cov_));
+  for (std::uint32_t i = 0; i < touched; ++i) upsert_edge(sorted[i].id, kf, sorted[i].weight);
+}
+
+std::size_t Map::point_observations(PointId p,
+                                    std::span<std::pair<KeyframeId, std::uint32_t>> out) const {
+  if (!own_point(p)) return 0;
+  const std::size_t n = std::min<std::size_t>(obs_count_[p], out.size());
+  const Observation* o = &obs_[std::size_t{p} * max_obs_];
+  for (std::size_t i = 0; i < n; ++i) out[i] = {o[i].kf(), o[i].kp()};
+  return n;
+}
+
+std::size_t Map::point_num_observations(PointId p) const {
+  return own_point(p) ? obs_count_[p] : 0U;
+}
+
+SE3d Map::relative_pose(KeyframeId a, KeyframeId b) const {
+  const std::uint32_t n = num_keyframes_.load(std::memory_order_relaxed);
+  if (a >= n || b >= n) return SE3d::Identity();
+  return own_pose(a).inverse() * own_pose(b);
+}
+
+// ---- readers -----------------------------------------------------------------------------
+
+std::uint32_t Map::num_keyframes() const noexcept {
+  return num_keyframes_.load(std::memory_order_acquire);
+}
+
+std::uint32_t Map::num_points() const noexcept {
+  return num_points_.load(std::memory_order_acquire);
+}
+
+bool Map::keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale) const noexcept {
+  if (kf >= num_keyframes()) return false;
+  const KeyframeSlot& s = kfs_[kf];
+  std::uint64_t w[kPoseWords];
+  if (!s.pose_lock.read([&] {
+        for (int i = 0; i < kPoseWords; ++i) w[i] = load_payload(s.pose[i]);
+      })) {
+    return false;
+  }
+  T_w_c = decode_pose(w);
+  if (scale != nullptr) *scale = unpack_double(w[kPoseScale]);
+  return true;
+}
+
+std::span<const features::Keypoint> Map::keyframe_keypoints(KeyframeId kf) const noexcept {
+  if (kf >= num_keyframes()) return {};
+  return {&kf_keypoints_[kp_index(kf, 0)], kfs_[kf].num_keypoints};
+}
+
+std::span<const features::Descriptor> Map::keyframe_descriptors(KeyframeId kf) const noexcept {
+  if (kf >= num_keyframes()) return {};
+  return {&kf_descriptors_[kp_index(kf, 0)], kfs_[kf].num_keypoints};
+}
+
+std::uint32_t Map::keyframe_num_keypoints(KeyframeId kf) const noexcept {
+  return kf < num_keyframes() ? kfs_[kf].num_keypoints : 0U;
+}
+
+std::int64_t Map::keyframe_t_ns(KeyframeId kf) const noexcept {
+  return kf < num_keyframes() ? kfs_[kf].t_ns : 0;
+}
+
+std::uint64_t Map::keyframe_seq(KeyframeId kf) const noexcept {
+  return kf < num_keyframes() ? kfs_[kf].seq : 0U;
+}
+
+PointId Map::keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept {
+  if (!valid_keypoint(kf, kp)) return kNoId;
+  return kf_points_[kp_index(kf, kp)].load(std::memory_order_acquire);
+}
+
+float Map::keyframe_depth(KeyframeId kf, std::uint32_t kp) const noexcept {
+  if (!valid_keypoint(kf, kp)) return 0.0F;
+  return kf_depth_[kp_index(kf, kp)].load(std::memory_order_relaxed);
+}
+
+float Map::keyframe_depth_confidence(KeyframeId kf, std::uint32_t kp) const noexcept {
+  if (!valid_keypoint(kf, kp)) return 0.0F;
+  return kf_depth_conf_[kp_index(kf, kp)].load(std::memory_order_relaxed);
+}
+
+bool Map::keyframe_point_3d(KeyframeId kf, std::uint32_t kp, const geometry::Pinhole& K,
+                            Eigen::Vector3d& p_c) const noexcept {
+  const float depth = keyframe_depth(kf, kp);
+  if (!(depth > 0.0F)) return false;
+  const features::Keypoint& k = kf_keypoints_[kp_index(kf, kp)];
+  p_c = static_cast<double>(depth) *
+        K.unproject({static_cast<double>(k.x), static_cast<double>(k.y)});
+  return true;
+}
+
+bool Map::read_point(PointId p, PointView& out) const noexcept {
+  if (p >= num_points()) return false;
+  const PointSlot& s = points_[p];
+  if (s.bad.load(std::memory_order_acquire) != 0U) return false;
+  std::uint64_t w[kPointWords];
+  if (!s.lock.read([&] {
+        for (int i = 0; i < kPointWords; ++i) w[i] = load_payload(s.words[i]);
+      })) {
+    return false;
+  }
+  decode_point(w, out);
+  out.ref_keyframe = s.ref_kf;
+  out.ref_keypoint = s.ref_kp;
+  return true;
+}
+
+bool Map::point_is_bad(PointId p) const noexcept {
+  return p >= num_points() || points_[p].bad.load(std::memory_order_acquire) != 0U;
+}
+
+std::size_t Map::covisible_keyframes(KeyframeId kf,
+                                     std::span<CovisibleKeyframe> out) const noexcept {
+  if (kf >= num_keyframes() || out.empty()) return 0;
+  const KeyframeSlot& s = kfs_[kf];
+  const std::size_t base = std::size_t{kf} * max_cov_;
+  std::size_t got = 0;
+  if (!s.covis_lock.read([&] {
+        got = std::min<std::size_t>(load_payload(s.covis_count), out.size());
+        for (std::size_t i = 0; i < got; ++i) out[i] = unpack_edge(load_payload(covis_[base + i]));
+      })) {
+    return 0;
+  }
+  return got;
+}
+
+std::uint32_t Map::covisibility_weight(KeyframeId a, KeyframeId b) const noexcept {
+  if (a >= num_keyframes()) return 0;
+  const KeyframeSlot& s = kfs_[a];
+  const std::size_t base = std::size_t{a} * max_cov_;
+  std::uint32_t weight = 0;
+  if (!s.covis_lock.read([&] {
+        weight = 0;
+        const std::uint32_t n = load_payload(s.covis_count);
+        for (std::uint32_t i = 0; i < n; ++i) {
+          const CovisibleKeyframe e = unpack_edge(load_payload(covis_[base + i]));
+          if (e.id == b) weight = e.weight;
+        }
+      })) {
+    return 0;
+  }
+  return weight;
+}
+
+std::size_t Map::query_visible(const SE3d& T_w_c, const geometry::Pinhole& K, int width, int height,
+                               double near, double far, std::span<PointId> out) const noexcept {
+  Frustum f;
+  if (!Frustum::make(T_w_c, K, width, height, near, far, f)) return 0;
+  return grid_.query_frustum(f, out);
+}
+
+std::size_t Map::query_radius(const Eigen::Vector3d& c_w, double radius,
+                              std::span<PointId> out) const noexcept {
+  return grid_.query_radius(c_w, radius, out);
+}
+
+std::size_t Map::memory_bytes() const noexcept {
+  const std::size_t n_kp = std::size_t{max_kf_} * max_kp_;
+  std::size_t b = sizeof(Map);
+  b += max_kf_ * sizeof(KeyframeSlot);
+  b += n_kp * (sizeof(features::Keypoint) + sizeof(features::Descriptor) +
+               sizeof(std::atomic<PointId>) + 2 * sizeof(std::atomic<float>));
+  b += std::size_t{max_kf_} * max_cov_ * sizeof(std::atomic<std::uint64_t>);
+  b += max_pts_ * (sizeof(PointSlot) + sizeof(std::uint8_t) + sizeof(CellKey));
+  b += std::size_t{max_pts_} * max_obs_ * sizeof(Observation);
+  b += max_kf_ * (sizeof(std::uint32_t) + sizeof(KeyframeId) + sizeof(CovisibleKeyframe));
+  b += (max_cov_ + 1U) * sizeof(CovisibleKeyframe);
+  b += (std::size_t{max_obs_} * max_obs_ + max_obs_) * sizeof(int);
+  b += grid_.memory_bytes();
+  return b;
+}
+
+}  // namespace mer::map

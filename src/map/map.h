@@ -1,0 +1,309 @@
+#pragma once
+/// @file map.h
+/// The SLAM map: keyframes, map points, the 3D cell grid (spatial hash) and the covisibility
+/// graph, in storage preallocated by the constructor. No method allocates afterwards (error
+/// results carry a message string: only failing calls allocate).
+///
+/// Threading contract
+/// ------------------
+///  - ONE writer thread (the mapping / back-end thread) calls every method of the "writer"
+///    group. They never block either (there is no lock at all).
+///  - Any number of reader threads (the real-time tracker) call the "reader" group, which is
+///    lock-free with bounded work: it never waits for the writer.
+///  - A keyframe / point is fully written into its slot, then the count is published with a
+///    release store. Readers load num_keyframes() / num_points() with acquire and only touch
+///    ids below it; every reader method checks the id and returns false / empty / kNoId /
+///    0 for an id that is not published yet.
+///  - Immutable after publication (plain memory, no synchronization cost): keyframe
+///    keypoints, descriptors, seq, t_ns and the point's reference keyframe / keypoint.
+///  - Mutable after publication, read through a per-slot seqlock whose payload is stored in
+///    std::atomic words (seqlock.h; ThreadSanitizer-clean): keyframe pose + scale, point
+///    position, representative descriptor, normal and distance range, and each keyframe's
+///    covisibility list. A reader that cannot get a consistent snapshot in
+///    kSeqlockReadAttempts tries (the writer was preempted inside its short write section)
+///    gets false / 0 and skips the item.
+///  - Single atomic words (no seqlock needed): keypoint->point associations, per-keypoint
+///    depth and confidence, the bad flag.
+///  - point_observations(), point_num_observations() and relative_pose() read writer-side
+///    state: writer thread only. Readers use keyframe_point() / keyframe_pose() instead.
+///  - Consistency between items is not promised: a reader may see a point's new position with
+///    the old cell, a new observation before the descriptor update, etc. Each individual
+///    value read is one the writer wrote as a whole.
+///
+/// Design notes (why not exactly the first sketch):
+///  - Ids are never reused (a bad point keeps its slot; keyframes are never removed): a stale
+///    id held by the tracker can never alias a newer item. The cost is that max_points and
+///    max_keyframes bound what a session can ever create (add_* then return an error naming
+///    the option).
+///  - The seqlock is fence-free (release payload stores / acquire payload loads) because GCC's
+///    ThreadSanitizer does not support std::atomic_thread_fence (-Wtsan); see seqlock.h.
+///  - Cells use swap-with-last removal under a per-cell seqlock (dense cells, no tombstones);
+///    a query overlapping a point move de-duplicates its output, so ids are always distinct.
+///  - query_visible marches cell layers front to back (nearest first, bounded by the
+///    frustum) or, when the frustum covers more cells than a table scan costs, scans the
+///    table once: its work is bounded by the table size whatever near / far are.
+///  - Observation lists (keyframe, keypoint) of points are writer-side data (the writer is
+///    the one that needs them: covisibility, descriptors); readers see the same relation
+///    from the keyframe side through keyframe_point().
+///  - Memory with default options: ~81 MiB (memory_bytes()): keyframes 39 MiB (400 x 1500
+///    keypoints x 68 B: keypoint, descriptor, association, depth, confidence), points 29 MiB
+///    (150000 x 201 B: seqlocked payload, 24 packed 32-bit observations, cell key), cells
+///    13 MiB (65536 entries x 48 ids), covisibility 0.2 MiB. Every array is written once by
+///    the constructor, so its pages are resident (no page faults on the real-time path).
+///  - Covisibility edges are refreshed by update_covisibility(kf) for kf and, symmetrically,
+///    in the lists of all keyframes sharing points with it; an edge between two keyframes
+///    that are both never updated again keeps its last weight.
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <utility>
+
+#include <Eigen/Core>
+
+#include "core/pose.h"
+#include "core/status.h"
+#include "features/keypoint.h"
+#include "geometry/camera_model.h"
+#include "map/cell_grid.h"
+#include "map/map_options.h"
+#include "map/map_types.h"
+#include "map/seqlock.h"
+#include "platform/cache_line.h"
+
+namespace mer::map {
+
+/// What the front end hands to add_keyframe (spans are copied).
+struct KeyframeInput {
+  std::uint64_t seq = 0;          ///< frame sequence number
+  std::int64_t t_ns = 0;          ///< capture time, ns
+  SE3d T_w_c = SE3d::Identity();  ///< camera-to-world pose
+  std::span<const features::Keypoint> keypoints;
+  std::span<const features::Descriptor> descriptors;  ///< one per keypoint
+  std::span<const float> depth;             ///< per keypoint camera z (0: unknown); may be empty
+  std::span<const float> depth_confidence;  ///< per keypoint, may be empty (0)
+};
+
+/// A consistent snapshot of a map point.
+struct PointView {
+  Eigen::Vector3d p_w = Eigen::Vector3d::Zero();     ///< world position
+  features::Descriptor descriptor{};                 ///< representative descriptor (medoid)
+  Eigen::Vector3f normal = Eigen::Vector3f::Zero();  ///< mean unit viewing direction
+  KeyframeId ref_keyframe = kNoId;                   ///< keyframe that created it
+  std::uint32_t ref_keypoint = 0;                    ///< its keypoint in ref_keyframe
+  float min_distance = 0.0F;  ///< scale invariance: closest distance it can be matched at
+  float max_distance = 0.0F;  ///< farthest distance it can be matched at
+};
+
+/// An edge of the covisibility graph.
+struct CovisibleKeyframe {
+  KeyframeId id = kNoId;     ///< the other keyframe
+  std::uint32_t weight = 0;  ///< map points both observe
+};
+
+/// The map (see the file comment for the threading contract).
+class Map {
+ public:
+  /// Preallocates everything. Options are used as effective_options(opts) (validate() them
+  /// first to report bad values to the user; the constructor never fails).
+  explicit Map(const MapOptions& opts);
+  Map(const Map&) = delete;
+  Map& operator=(const Map&) = delete;
+
+  // ---------------------------------------------------------------- writer thread only --
+  /// Copies a keyframe in and publishes it. Errors: map full (names map.max_keyframes), too
+  /// many keypoints (names map.max_keypoints_per_keyframe), span sizes that disagree.
+  Result<KeyframeId> add_keyframe(const KeyframeInput& in);
+  /// Creates a point at p_w observed by keypoint ref_kp of ref_kf: descriptor from that
+  /// keypoint, normal / distances from that keyframe's pose, inserted into its cell (a full
+  /// cell is counted in cell_insert_failures(); the point still exists). Errors: map full
+  /// (names map.max_points), unknown keyframe / keypoint, keypoint already associated,
+  /// non-finite position.
+  Result<PointId> add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf, std::uint32_t ref_kp);
+  /// Associates keypoint kp of kf with point p. False when an id is invalid, the point is bad,
+  /// the keypoint already has a point, the point already has an observation in kf or its
+  /// observation list is full (map.max_observations_per_point). Does not refresh the
+  /// descriptor (update_point) nor the covisibility (update_covisibility).
+  bool add_observation(PointId p, KeyframeId kf, std::uint32_t kp);
+  /// Recomputes the representative descriptor (the observation descriptor with the least
+  /// median Hamming distance to all observation descriptors), the normal (mean unit vector
+  /// from the observing camera centres) and the distance range (from the reference keyframe).
+  void update_point(PointId p);
+  /// Moves a point (and between cells when its cell changes). Descriptor, normal and
+  /// distances are kept: call update_point after a batch of moves if they matter.
+  void set_point_position(PointId p, const Eigen::Vector3d& p_w);
+  /// Sets a keyframe pose and its similarity scale (Sim3 corrections; stored, not applied).
+  void set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale = 1.0);
+  /// Sets the depth / confidence of one keypoint (depth refinement after publication).
+  void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
+  /// Marks a point bad (final): removed from its cell, its keypoint associations and
+  /// observations cleared. Covisibility weights change at the next update_covisibility.
+  void set_point_bad(PointId p);
+  /// Recomputes kf's KF-KF edges (weight = shared non-bad points; the strongest
+  /// map.max_covisible_per_keyframe kept, sorted by weight desc then id asc) and the reverse
+  /// edges in every keyframe sharing points with kf (each keeps its strongest edges too);
+  /// reverse edges of former neighbours that share nothing any more are removed.
+  void update_covisibility(KeyframeId kf);
+  /// Observations (keyframe, keypoint) of p, up to out.size(); the count written.
+  std::size_t point_observations(PointId p,
+                                 std::span<std::pair<KeyframeId, std::uint32_t>> out) const;
+  /// Number of observations of p (0 for a bad or unknown point).
+  std::size_t point_num_observations(PointId p) const;
+  /// T_a_b = T_w_a^-1 * T_w_b from the current poses (identity for an unknown id).
+  SE3d relative_pose(KeyframeId a, KeyframeId b) const;
+
+  // ------------------------------------------------------- any thread, lock-free --------
+  /// Published keyframes (acquire); ids below it are valid.
+  std::uint32_t num_keyframes() const noexcept;
+  /// Published points (acquire); ids below it are valid (some may be bad).
+  std::uint32_t num_points() const noexcept;
+  /// Consistent pose (and scale); false for an unknown id or after failed retries.
+  bool keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale = nullptr) const noexcept;
+  /// Keypoints of kf (immutable after publication; empty for an unknown id).
+  std::span<const features::Keypoint> keyframe_keypoints(KeyframeId kf) const noexcept;
+  /// Descriptors of kf (immutable after publication; empty for an unknown id).
+  std::span<const features::Descriptor> keyframe_descriptors(KeyframeId kf) const noexcept;
+  /// Number of keypoints of kf (0 for an unknown id).
+  std::uint32_t keyframe_num_keypoints(KeyframeId kf) const noexcept;
+  /// Capture time of kf, ns (0 for an unknown id).
+  std::int64_t keyframe_t_ns(KeyframeId kf) const noexcept;
+  /// Frame sequence number of kf (0 for an unknown id).
+  std::uint64_t keyframe_seq(KeyframeId kf) const noexcept;
+  /// Point associated with keypoint kp of kf, kNoId if none.
+  PointId keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept;
+  /// Depth (camera z, map units; 0: unknown) of keypoint kp of kf.
+  float keyframe_depth(KeyframeId kf, std::uint32_t kp) const noexcept;
+  /// Depth confidence of keypoint kp of kf (0: none).
+  float keyframe_depth_confidence(KeyframeId kf, std::uint32_t kp) const noexcept;
+  /// Keypoint kp of kf as a 3D point in kf's camera frame: depth * K^-1 [u v 1]. False when
+  /// the depth is unknown or an id is invalid.
+  bool keyframe_point_3d(KeyframeId kf, std::uint32_t kp, const geometry::Pinhole& K,
+                         Eigen::Vector3d& p_c) const noexcept;
+  /// Consistent snapshot of p; false if bad, unpublished or inconsistent after retries.
+  bool read_point(PointId p, PointView& out) const noexcept;
+  /// True for a bad or unpublished point.
+  bool point_is_bad(PointId p) const noexcept;
+  /// kf's covisible keyframes sorted by weight desc (up to out.size()); count written (0 for
+  /// an unknown id or after failed retries).
+  std::size_t covisible_keyframes(KeyframeId kf, std::span<CovisibleKeyframe> out) const noexcept;
+  /// Weight of the edge a->b as stored in a's list (0 if none).
+  std::uint32_t covisibility_weight(KeyframeId a, KeyframeId b) const noexcept;
+  /// Distinct ids of the points in the cells intersecting the view frustum of a camera at
+  /// T_w_c (K, width x height px, camera-z range [near, far] in map units), nearest cell
+  /// layers first (unless a concurrent move forced a de-duplication, which sorts by id).
+  /// A superset of the points that project into the image within [near, far]: filter by
+  /// projection. Up to out.size() ids; the count written (0 for a degenerate camera).
+  std::size_t query_visible(const SE3d& T_w_c, const geometry::Pinhole& K, int width, int height,
+                            double near, double far, std::span<PointId> out) const noexcept;
+  /// Distinct ids of the points in the cells intersecting the ball (c_w, radius): a superset
+  /// of the points within radius, each within radius + one cell diagonal.
+  std::size_t query_radius(const Eigen::Vector3d& c_w, double radius,
+                           std::span<PointId> out) const noexcept;
+
+  /// Effective options.
+  const MapOptions& options() const noexcept { return opts_; }
+  /// Cell inserts that failed (full cell, full table, position out of range), all attempts.
+  std::uint64_t cell_insert_failures() const noexcept { return grid_.failures(); }
+  /// The cell grid (statistics, direct cell access for tests and tools).
+  const CellGrid& cell_grid() const noexcept { return grid_; }
+  /// Bytes of preallocated storage.
+  std::size_t memory_bytes() const noexcept;
+
+ private:
+  // Seqlock payload layouts (64-bit words).
+  static constexpr int kPoseRotation = 0;     // 9 words, column-major
+  static constexpr int kPoseTranslation = 9;  // 3 words
+  static constexpr int kPoseScale = 12;
+  static constexpr int kPoseWords = 13;
+  static constexpr int kPointPosition = 0;    // 3 words
+  static constexpr int kPointDescriptor = 3;  // 4 words
+  static constexpr int kPointNormalXY = 7;    // floats (normal x, normal y)
+  static constexpr int kPointNormalZMin = 8;  // floats (normal z, min distance)
+  static constexpr int kPointMax = 9;         // floats (max distance, unused)
+  static constexpr int kPointWords = 10;
+
+  struct KeyframeSlot {
+    std::uint64_t seq = 0;  // immutable after publication
+    std::int64_t t_ns = 0;
+    std::uint32_t num_keypoints = 0;
+    SeqLock pose_lock;
+    std::atomic<std::uint64_t> pose[kPoseWords] = {};
+    SeqLock covis_lock;
+    std::atomic<std::uint32_t> covis_count{0};
+  };
+  struct PointSlot {
+    SeqLock lock;
+    std::atomic<std::uint8_t> bad{0};
+    KeyframeId ref_kf = kNoId;  // immutable after publication
+    std::uint32_t ref_kp = 0;
+    std::atomic<std::uint64_t> words[kPointWords] = {};
+  };
+  /// (keyframe, keypoint) in 32 bits: the option ranges keep max_keyframes <= 100000 <
+  /// 2^18 and max_keypoints_per_keyframe <= 2^14 (halves the largest writer-side array).
+  struct Observation {
+    static constexpr unsigned kKeypointBits = 14;
+    std::uint32_t bits = 0;
+    static Observation make(KeyframeId kf, std::uint32_t kp) noexcept {
+      return {(kf << kKeypointBits) | kp};
+    }
+    KeyframeId kf() const noexcept { return bits >> kKeypointBits; }
+    std::uint32_t kp() const noexcept { return bits & ((1U << kKeypointBits) - 1U); }
+  };
+
+  std::size_t kp_index(KeyframeId kf, std::uint32_t kp) const noexcept {
+    return static_cast<std::size_t>(kf) * max_kp_ + kp;
+  }
+  bool valid_keypoint(KeyframeId kf, std::uint32_t kp) const noexcept;
+  bool own_point(PointId p) const noexcept;  // writer: published and not bad
+  static SE3d decode_pose(const std::uint64_t (&w)[kPoseWords]) noexcept;
+  static void decode_point(const std::uint64_t (&w)[kPointWords], PointView& out) noexcept;
+  SE3d own_pose(KeyframeId kf) const noexcept;
+  Eigen::Vector3d own_position(PointId p) const noexcept;
+  void write_pose(KeyframeId kf, const SE3d& T_w_c, double scale) noexcept;
+  void write_position(PointId p, const Eigen::Vector3d& p_w) noexcept;
+  void write_shape(PointId p, const features::Descriptor& d, const Eigen::Vector3d& normal,
+                   float min_d, float max_d) noexcept;
+  void shape_from_ref(PointId p, const Eigen::Vector3d& p_w, Eigen::Vector3d& normal, float& min_d,
+                      float& max_d) const noexcept;
+  std::uint32_t own_covis(KeyframeId kf, CovisibleKeyframe* out) const noexcept;
+  void write_covis(KeyframeId kf, const CovisibleKeyframe* list, std::uint32_t n) noexcept;
+  void upsert_edge(KeyframeId owner, KeyframeId other, std::uint32_t weight) noexcept;
+  void remove_edge(KeyframeId owner, KeyframeId other) noexcept;
+
+  MapOptions opts_;
+  std::uint32_t max_kf_;
+  std::uint32_t max_pts_;
+  std::uint32_t max_kp_;
+  std::uint32_t max_obs_;
+  std::uint32_t max_cov_;
+
+  // Reader-visible storage.
+  std::unique_ptr<KeyframeSlot[]> kfs_;
+  std::unique_ptr<features::Keypoint[]> kf_keypoints_;      // max_kf x max_kp
+  std::unique_ptr<features::Descriptor[]> kf_descriptors_;  // max_kf x max_kp
+  std::unique_ptr<std::atomic<PointId>[]> kf_points_;       // max_kf x max_kp
+  std::unique_ptr<std::atomic<float>[]> kf_depth_;          // max_kf x max_kp
+  std::unique_ptr<std::atomic<float>[]> kf_depth_conf_;     // max_kf x max_kp
+  std::unique_ptr<std::atomic<std::uint64_t>[]> covis_;     // max_kf x max_cov (id<<32|w)
+  std::unique_ptr<PointSlot[]> points_;
+  CellGrid grid_;
+
+  // Writer-only storage.
+  std::unique_ptr<Observation[]> obs_;         // max_pts x max_obs
+  std::unique_ptr<std::uint8_t[]> obs_count_;  // max_pts
+  std::unique_ptr<CellKey[]> point_cell_;      // cell holding each point, kNoCell if none
+
+  // Writer scratch (sized at construction).
+  std::unique_ptr<std::uint32_t[]> covis_weight_;      // max_kf, all zero between calls
+  std::unique_ptr<KeyframeId[]> covis_touched_;        // max_kf
+  std::unique_ptr<CovisibleKeyframe[]> covis_sorted_;  // max_kf
+  std::unique_ptr<CovisibleKeyframe[]> list_scratch_;  // max_cov + 1
+  std::unique_ptr<int[]> medoid_dist_;                 // max_obs x max_obs
+  std::unique_ptr<int[]> medoid_row_;                  // max_obs
+
+  alignas(platform::kCacheLine) std::atomic<std::uint32_t> num_keyframes_{0};
+  alignas(platform::kCacheLine) std::atomic<std::uint32_t> num_points_{0};
+};
+
+}  // namespace mer::map

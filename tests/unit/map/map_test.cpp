@@ -1,0 +1,624 @@
+// Map: options, keyframes and points, associations, descriptors, covisibility, cell moves,
+// zero allocations after construction and the query_visible time budget.
+#include "map/map.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <random>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "platform/alloc_counter.h"
+
+namespace mer::map {
+namespace {
+
+MapOptions small_options() {
+  MapOptions o;
+  o.max_keyframes = 8;
+  o.max_points = 64;
+  o.max_keypoints_per_keyframe = 32;
+  o.max_observations_per_point = 6;
+  o.max_covisible_per_keyframe = 4;
+  o.cell_table_size = 256;
+  o.points_per_cell = 8;
+  return o;
+}
+
+features::Descriptor descriptor_of(std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  return {rng(), rng(), rng(), rng()};
+}
+
+/// A keyframe with n keypoints at (i, 2i) px, descriptors from (kf_seed, i), depth i + 1.
+struct KfData {
+  std::vector<features::Keypoint> kps;
+  std::vector<features::Descriptor> desc;
+  std::vector<float> depth;
+  KeyframeInput input(const SE3d& T, std::uint64_t seq) const {
+    KeyframeInput in;
+    in.seq = seq;
+    in.t_ns = static_cast<std::int64_t>(seq) * 1000;
+    in.T_w_c = T;
+    in.keypoints = kps;
+    in.descriptors = desc;
+    in.depth = depth;
+    return in;
+  }
+};
+
+KfData make_kf(int n, std::uint64_t seed) {
+  KfData d;
+  for (int i = 0; i < n; ++i) {
+    features::Keypoint k;
+    k.x = static_cast<float>(i);
+    k.y = static_cast<float>(2 * i);
+    k.level = static_cast<std::int8_t>(i % 3);
+    k.scale = i % 3 == 0 ? 1.0F : (i % 3 == 1 ? 1.2F : 1.44F);
+    d.kps.push_back(k);
+    d.desc.push_back(descriptor_of(seed * 1000 + static_cast<std::uint64_t>(i)));
+    d.depth.push_back(static_cast<float>(i + 1));
+  }
+  return d;
+}
+
+SE3d pose_at(double x, double yaw) {
+  return make_se3(Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY())),
+                  Eigen::Vector3d(x, 0.1 * x, 0.0));
+}
+
+KeyframeId add_kf(Map& m, const KfData& d, const SE3d& T, std::uint64_t seq) {
+  Result<KeyframeId> r = m.add_keyframe(d.input(T, seq));
+  EXPECT_TRUE(r.is_ok()) << r.status().message();
+  return r.is_ok() ? r.value() : kNoId;
+}
+
+PointId add_pt(Map& m, const Eigen::Vector3d& p, KeyframeId kf, std::uint32_t kp) {
+  Result<PointId> r = m.add_point(p, kf, kp);
+  EXPECT_TRUE(r.is_ok()) << r.status().message();
+  return r.is_ok() ? r.value() : kNoId;
+}
+
+// ---- options ----------------------------------------------------------------------------
+
+TEST(MapOptions, ValidationNamesTheKey) {
+  EXPECT_TRUE(validate(MapOptions{}).is_ok());
+  MapOptions o;
+  o.max_points = 0;
+  Status s = validate(o);
+  ASSERT_FALSE(s.is_ok());
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("map.max_points"), std::string::npos) << s.message();
+
+  o = MapOptions{};
+  o.cell_table_size = 50000;
+  s = validate(o);
+  ASSERT_FALSE(s.is_ok());
+  EXPECT_NE(s.message().find("map.cell_table_size"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("power of two"), std::string::npos) << s.message();
+  EXPECT_EQ(effective_options(o).cell_table_size, 65536);
+
+  o = MapOptions{};
+  o.cell_size = 0.0;
+  s = validate(o);
+  EXPECT_NE(s.message().find("map.cell_size"), std::string::npos) << s.message();
+  EXPECT_DOUBLE_EQ(effective_options(o).cell_size, 1e-3);
+}
+
+/// Counts fields and checks that each has a doc line and a range.
+struct DocCheck {
+  int fields = 0;
+  template <typename T, typename C = options::Any>
+  void field(std::string_view key, T& /*value*/, std::string_view doc, const C& /*c*/ = {}) {
+    ++fields;
+    EXPECT_FALSE(doc.empty()) << key;
+    EXPECT_TRUE((std::is_same_v<C, options::Range<T>>)) << key << " has no range";
+  }
+};
+
+TEST(MapOptions, EveryFieldHasADocLineAndRange) {
+  DocCheck v;
+  MapOptions o;
+  o.visit(v);
+  EXPECT_EQ(v.fields, 9);
+}
+
+// ---- keyframes ---------------------------------------------------------------------------
+
+TEST(Map, AddKeyframeStoresEverything) {
+  Map m(small_options());
+  EXPECT_EQ(m.num_keyframes(), 0u);
+  const KfData d = make_kf(10, 1);
+  const SE3d T = pose_at(1.0, 0.3);
+  const KeyframeId kf = add_kf(m, d, T, 42);
+  ASSERT_EQ(kf, 0u);
+  EXPECT_EQ(m.num_keyframes(), 1u);
+  EXPECT_EQ(m.keyframe_seq(kf), 42u);
+  EXPECT_EQ(m.keyframe_t_ns(kf), 42000);
+  ASSERT_EQ(m.keyframe_keypoints(kf).size(), 10u);
+  EXPECT_EQ(m.keyframe_keypoints(kf)[3].y, 6.0F);
+  EXPECT_EQ(m.keyframe_descriptors(kf)[7], d.desc[7]);
+  EXPECT_EQ(m.keyframe_num_keypoints(kf), 10u);
+  EXPECT_EQ(m.keyframe_point(kf, 3), kNoId);
+  EXPECT_EQ(m.keyframe_depth(kf, 4), 5.0F);
+  EXPECT_EQ(m.keyframe_depth_confidence(kf, 4), 0.0F);
+  SE3d got;
+  double scale = 0.0;
+  ASSERT_TRUE(m.keyframe_pose(kf, got, &scale));
+  EXPECT_TRUE(got.isApprox(T, 1e-15));
+  EXPECT_EQ(scale, 1.0);
+  // Unknown ids.
+  EXPECT_FALSE(m.keyframe_pose(1, got));
+  EXPECT_TRUE(m.keyframe_keypoints(1).empty());
+  EXPECT_EQ(m.keyframe_point(kf, 10), kNoId);
+  EXPECT_EQ(m.keyframe_depth(kf, 10), 0.0F);
+
+  // 3D-3D: depth * K^-1 [u v 1].
+  const geometry::Pinhole K{400, 400, 3, 4};
+  Eigen::Vector3d p_c;
+  ASSERT_TRUE(m.keyframe_point_3d(kf, 5, K, p_c));  // u = 5, v = 10, depth 6
+  EXPECT_TRUE(p_c.isApprox(Eigen::Vector3d(6.0 * 2 / 400, 6.0 * 6 / 400, 6.0)));
+  m.set_keyframe_depth(kf, 5, 0.0F, 0.0F);
+  EXPECT_FALSE(m.keyframe_point_3d(kf, 5, K, p_c));
+  m.set_keyframe_depth(kf, 5, 2.5F, 0.75F);
+  EXPECT_EQ(m.keyframe_depth(kf, 5), 2.5F);
+  EXPECT_EQ(m.keyframe_depth_confidence(kf, 5), 0.75F);
+
+  const SE3d T2 = pose_at(-2.0, -0.7);
+  m.set_keyframe_pose(kf, T2, 1.5);
+  ASSERT_TRUE(m.keyframe_pose(kf, got, &scale));
+  EXPECT_TRUE(got.isApprox(T2, 1e-15));
+  EXPECT_EQ(scale, 1.5);
+}
+
+TEST(Map, AddKeyframeErrorsNameTheOption) {
+  MapOptions o = small_options();
+  o.max_keyframes = 2;
+  Map m(o);
+  const KfData too_many = make_kf(33, 1);
+  Result<KeyframeId> r = m.add_keyframe(too_many.input(SE3d::Identity(), 0));
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("map.max_keypoints_per_keyframe"), std::string::npos)
+      << r.status().message();
+
+  KfData bad = make_kf(5, 1);
+  bad.desc.pop_back();
+  r = m.add_keyframe(bad.input(SE3d::Identity(), 0));
+  EXPECT_FALSE(r.is_ok());
+  EXPECT_EQ(m.num_keyframes(), 0u);
+
+  const KfData d = make_kf(5, 1);
+  add_kf(m, d, SE3d::Identity(), 0);
+  add_kf(m, d, SE3d::Identity(), 1);
+  r = m.add_keyframe(d.input(SE3d::Identity(), 2));
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("map.max_keyframes"), std::string::npos)
+      << r.status().message();
+  EXPECT_EQ(m.num_keyframes(), 2u);
+}
+
+// ---- points ----------------------------------------------------------------------------
+
+TEST(Map, AddPointAssociatesAndReads) {
+  Map m(small_options());
+  const KfData d = make_kf(10, 1);
+  const SE3d T = pose_at(0.0, 0.0);
+  const KeyframeId kf = add_kf(m, d, T, 0);
+  const Eigen::Vector3d p_w(0.3, -0.2, 2.0);
+  const PointId p = add_pt(m, p_w, kf, 4);  // keypoint 4: level 1, scale 1.2
+  ASSERT_EQ(p, 0u);
+  EXPECT_EQ(m.num_points(), 1u);
+  EXPECT_EQ(m.keyframe_point(kf, 4), p);
+  PointView v;
+  ASSERT_TRUE(m.read_point(p, v));
+  EXPECT_EQ(v.p_w, p_w);
+  EXPECT_EQ(v.descriptor, d.desc[4]);
+  EXPECT_EQ(v.ref_keyframe, kf);
+  EXPECT_EQ(v.ref_keypoint, 4u);
+  EXPECT_TRUE(v.normal.isApprox(p_w.normalized().cast<float>(), 1e-6F));
+  EXPECT_NEAR(v.max_distance, p_w.norm() * 1.2, 1e-5);
+  EXPECT_NEAR(v.min_distance, v.max_distance / m.options().distance_scale_range, 1e-5);
+  EXPECT_FALSE(m.point_is_bad(p));
+  EXPECT_TRUE(m.point_is_bad(1));  // unpublished
+  EXPECT_FALSE(m.read_point(1, v));
+
+  std::pair<KeyframeId, std::uint32_t> obs[8];
+  ASSERT_EQ(m.point_observations(p, obs), 1u);
+  EXPECT_EQ(obs[0], std::make_pair(kf, 4u));
+
+  // The keypoint is taken; bad ids; non-finite position.
+  EXPECT_FALSE(m.add_point(p_w, kf, 4).is_ok());
+  EXPECT_FALSE(m.add_point(p_w, kf, 10).is_ok());
+  EXPECT_FALSE(m.add_point(p_w, 3, 0).is_ok());
+  EXPECT_FALSE(m.add_point(Eigen::Vector3d(NAN, 0, 0), kf, 5).is_ok());
+  EXPECT_EQ(m.num_points(), 1u);
+
+  PointId buf[8];
+  ASSERT_EQ(m.query_radius(p_w, 0.01, buf), 1u);
+  EXPECT_EQ(buf[0], p);
+}
+
+TEST(Map, PointsFullNamesTheOption) {
+  MapOptions o = small_options();
+  o.max_points = 3;
+  Map m(o);
+  const KeyframeId kf = add_kf(m, make_kf(10, 1), SE3d::Identity(), 0);
+  for (std::uint32_t i = 0; i < 3; ++i) add_pt(m, Eigen::Vector3d(0, 0, 1.0 + i), kf, i);
+  Result<PointId> r = m.add_point(Eigen::Vector3d(0, 0, 1), kf, 5);
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("map.max_points"), std::string::npos) << r.status().message();
+}
+
+TEST(Map, ObservationRules) {
+  MapOptions o = small_options();
+  o.max_observations_per_point = 3;
+  Map m(o);
+  const KfData d = make_kf(10, 1);
+  std::vector<KeyframeId> kfs;
+  for (int i = 0; i < 5; ++i) kfs.push_back(add_kf(m, d, pose_at(i, 0), i));
+  const PointId p = add_pt(m, Eigen::Vector3d(0, 0, 3), kfs[0], 0);
+  EXPECT_FALSE(m.add_observation(p, kfs[0], 1));  // already observed by kf 0
+  EXPECT_TRUE(m.add_observation(p, kfs[1], 2));
+  EXPECT_FALSE(m.add_observation(p, kfs[2], 2 + 100));  // bad keypoint
+  EXPECT_FALSE(m.add_observation(p + 1, kfs[2], 2));    // unknown point
+  const PointId q = add_pt(m, Eigen::Vector3d(0, 0, 4), kfs[2], 2);
+  EXPECT_FALSE(m.add_observation(p, kfs[2], 2));  // keypoint taken by q
+  EXPECT_TRUE(m.add_observation(p, kfs[2], 3));
+  EXPECT_FALSE(m.add_observation(p, kfs[3], 3));  // full (3 observations)
+  EXPECT_EQ(m.point_num_observations(p), 3u);
+  EXPECT_EQ(m.keyframe_point(kfs[1], 2), p);
+  EXPECT_EQ(m.keyframe_point(kfs[2], 2), q);
+
+  m.set_point_bad(p);
+  EXPECT_TRUE(m.point_is_bad(p));
+  PointView v;
+  EXPECT_FALSE(m.read_point(p, v));
+  EXPECT_EQ(m.keyframe_point(kfs[0], 0), kNoId);
+  EXPECT_EQ(m.keyframe_point(kfs[1], 2), kNoId);
+  EXPECT_EQ(m.keyframe_point(kfs[2], 3), kNoId);
+  EXPECT_EQ(m.keyframe_point(kfs[2], 2), q);  // untouched
+  EXPECT_EQ(m.point_num_observations(p), 0u);
+  EXPECT_FALSE(m.add_observation(p, kfs[4], 0));
+  PointId buf[8];
+  const std::size_t n = m.query_radius(Eigen::Vector3d(0, 0, 3), 0.5, buf);
+  EXPECT_EQ(std::count(buf, buf + n, p), 0);
+  // The freed keypoint can carry a new point; ids keep increasing.
+  EXPECT_EQ(add_pt(m, Eigen::Vector3d(0, 0, 3), kfs[0], 0), q + 1);
+}
+
+TEST(Map, RepresentativeDescriptorIsTheHammingMedoid) {
+  MapOptions o = small_options();
+  o.max_observations_per_point = 8;
+  Map m(o);
+  // Seven keyframes; keypoint 0 of each carries a descriptor near a common base, with
+  // different numbers of flipped bits; one of them is the base itself (the medoid).
+  const features::Descriptor base = descriptor_of(99);
+  const int flips[7] = {40, 9, 0, 30, 5, 60, 12};
+  std::vector<features::Descriptor> descs;
+  std::mt19937 rng(3);
+  for (int k = 0; k < 7; ++k) {
+    KfData d = make_kf(4, 10 + static_cast<std::uint64_t>(k));
+    features::Descriptor x = base;
+    std::vector<int> bits(256);
+    for (int b = 0; b < 256; ++b) bits[b] = b;
+    std::shuffle(bits.begin(), bits.end(), rng);
+    for (int b = 0; b < flips[k]; ++b) {
+      x[static_cast<std::size_t>(bits[b] / 64)] ^= 1ULL << (bits[b] % 64);
+    }
+    d.desc[0] = x;
+    descs.push_back(x);
+    add_kf(m, d, pose_at(0.2 * k, 0.0), static_cast<std::uint64_t>(k));
+  }
+  const PointId p = add_pt(m, Eigen::Vector3d(0.5, 0, 3), 0, 0);
+  for (KeyframeId k = 1; k < 7; ++k) ASSERT_TRUE(m.add_observation(p, k, 0));
+  m.update_point(p);
+  PointView v;
+  ASSERT_TRUE(m.read_point(p, v));
+  // Brute-force medoid (least median distance, median over the row incl. self).
+  std::size_t best = 0;
+  int best_med = 1 << 30;
+  for (std::size_t i = 0; i < descs.size(); ++i) {
+    std::vector<int> row;
+    for (const auto& dj : descs) row.push_back(features::hamming(descs[i], dj));
+    std::sort(row.begin(), row.end());
+    const int med = row[(row.size() - 1) / 2];
+    if (med < best_med) {
+      best_med = med;
+      best = i;
+    }
+  }
+  EXPECT_EQ(best, 2u);  // the unflipped base
+  EXPECT_EQ(v.descriptor, descs[best]);
+  // Normal: mean direction from the 7 camera centres.
+  Eigen::Vector3d n = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 7; ++k) {
+    n += (Eigen::Vector3d(0.5, 0, 3) - pose_at(0.2 * k, 0.0).translation()).normalized();
+  }
+  EXPECT_TRUE(v.normal.isApprox(n.normalized().cast<float>(), 1e-6F));
+}
+
+TEST(Map, MovingPointsAcrossCells) {
+  Map m(small_options());
+  const KeyframeId kf = add_kf(m, make_kf(20, 1), SE3d::Identity(), 0);
+  const PointId a = add_pt(m, Eigen::Vector3d(0.1, 0.1, 1.1), kf, 0);
+  const PointId b = add_pt(m, Eigen::Vector3d(0.12, 0.1, 1.1), kf, 1);
+  PointId buf[16];
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 2u);
+  // Within the same cell.
+  m.set_point_position(a, Eigen::Vector3d(0.2, 0.2, 1.2));
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 2u);
+  // To another cell.
+  m.set_point_position(a, Eigen::Vector3d(3.0, -1.0, 2.0));
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 1u);
+  EXPECT_EQ(buf[0], b);
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, buf), 1u);
+  EXPECT_EQ(buf[0], a);
+  PointView v;
+  ASSERT_TRUE(m.read_point(a, v));
+  EXPECT_EQ(v.p_w, Eigen::Vector3d(3.0, -1.0, 2.0));
+  const CellGrid& g = m.cell_grid();
+  EXPECT_EQ(g.cell_points(g.key_of(Eigen::Vector3d(3.0, -1.0, 2.0)), buf), 1u);
+  // Out of range: counted, the point still exists, and it comes back when moved in range.
+  m.set_point_position(a, Eigen::Vector3d(1e9, 0, 0));
+  EXPECT_EQ(m.cell_insert_failures(), 1u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, buf), 0u);
+  m.set_point_position(a, Eigen::Vector3d(1.0, 1.0, 1.0));
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(1.0, 1.0, 1.0), 0.01, buf), 1u);
+  EXPECT_EQ(buf[0], a);
+  EXPECT_EQ(m.cell_insert_failures(), 1u);
+}
+
+TEST(Map, FullCellCountedAndPointStillUsable) {
+  MapOptions o = small_options();
+  o.points_per_cell = 2;
+  Map m(o);
+  const KeyframeId kf = add_kf(m, make_kf(10, 1), SE3d::Identity(), 0);
+  for (std::uint32_t i = 0; i < 4; ++i) add_pt(m, Eigen::Vector3d(0.01 * i, 0, 1.01), kf, i);
+  EXPECT_EQ(m.cell_insert_failures(), 2u);
+  EXPECT_EQ(m.cell_grid().stats().cell_full, 2u);
+  EXPECT_EQ(m.num_points(), 4u);
+  PointView v;
+  EXPECT_TRUE(m.read_point(3, v));
+  PointId buf[8];
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, buf), 2u);
+  // Freeing the cell and moving the homeless point in makes it findable again.
+  m.set_point_bad(0);
+  m.set_point_position(3, Eigen::Vector3d(0.05, 0.0, 1.02));
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, buf), 2u);
+  EXPECT_EQ(std::count(buf, buf + 2, PointId{3}), 1);
+}
+
+// ---- covisibility ------------------------------------------------------------------------
+
+/// Keyframes 0..4; kf 0 shares 10 points with kf 1, 7 with kf 3, 5 with kf 2, 7 with kf 4;
+/// kf 1 and kf 2 share 3 more points that kf 0 does not see.
+struct CovisFixture {
+  Map m;
+  std::vector<PointId> shared01;
+  explicit CovisFixture(const MapOptions& o) : m(o) {
+    const KfData d = make_kf(40, 1);
+    for (int k = 0; k < 5; ++k) add_kf(m, d, pose_at(k, 0.1 * k), static_cast<std::uint64_t>(k));
+    std::uint32_t next_kp[5] = {};
+    auto share = [&](std::initializer_list<KeyframeId> kfs, int count) {
+      for (int i = 0; i < count; ++i) {
+        const KeyframeId first = *kfs.begin();
+        const PointId p = add_pt(m, Eigen::Vector3d(0.1 * i, 0, 5), first, next_kp[first]++);
+        for (auto it = kfs.begin() + 1; it != kfs.end(); ++it) {
+          EXPECT_TRUE(m.add_observation(p, *it, next_kp[*it]++));
+        }
+        if (kfs.size() == 2 && first == 0 && *(kfs.begin() + 1) == 1) shared01.push_back(p);
+      }
+    };
+    share({0, 1}, 10);
+    share({0, 3}, 7);
+    share({0, 2}, 5);
+    share({0, 4}, 7);
+    share({1, 2}, 3);
+  }
+};
+
+MapOptions covis_options(int max_cov) {
+  MapOptions o = small_options();
+  o.max_points = 200;
+  o.max_keypoints_per_keyframe = 64;
+  o.max_covisible_per_keyframe = max_cov;
+  return o;
+}
+
+std::vector<std::pair<KeyframeId, std::uint32_t>> edges(const Map& m, KeyframeId kf) {
+  CovisibleKeyframe buf[16];
+  const std::size_t n = m.covisible_keyframes(kf, buf);
+  std::vector<std::pair<KeyframeId, std::uint32_t>> v;
+  for (std::size_t i = 0; i < n; ++i) v.emplace_back(buf[i].id, buf[i].weight);
+  return v;
+}
+
+using Edges = std::vector<std::pair<KeyframeId, std::uint32_t>>;
+
+TEST(Map, CovisibilityWeightsOrderAndReverseEdges) {
+  CovisFixture f(covis_options(8));
+  Map& m = f.m;
+  m.update_covisibility(0);
+  EXPECT_EQ(edges(m, 0), (Edges{{1, 10}, {3, 7}, {4, 7}, {2, 5}}));  // ties: lower id first
+  EXPECT_EQ(edges(m, 1), (Edges{{0, 10}}));  // reverse edges only (kf 1 not updated yet)
+  EXPECT_EQ(edges(m, 2), (Edges{{0, 5}}));
+  EXPECT_EQ(edges(m, 3), (Edges{{0, 7}}));
+  EXPECT_EQ(m.covisibility_weight(4, 0), 7u);
+  m.update_covisibility(1);
+  EXPECT_EQ(edges(m, 1), (Edges{{0, 10}, {2, 3}}));
+  EXPECT_EQ(edges(m, 2), (Edges{{0, 5}, {1, 3}}));
+
+  // Points going bad lower the weights; an edge whose weight reaches 0 disappears on both
+  // sides.
+  for (int i = 0; i < 4; ++i) m.set_point_bad(f.shared01[static_cast<std::size_t>(i)]);
+  m.update_covisibility(0);
+  EXPECT_EQ(edges(m, 0), (Edges{{3, 7}, {4, 7}, {1, 6}, {2, 5}}));
+  EXPECT_EQ(edges(m, 1), (Edges{{0, 6}, {2, 3}}));
+  for (std::size_t i = 4; i < f.shared01.size(); ++i) m.set_point_bad(f.shared01[i]);
+  m.update_covisibility(0);
+  EXPECT_EQ(edges(m, 0), (Edges{{3, 7}, {4, 7}, {2, 5}}));
+  EXPECT_EQ(edges(m, 1), (Edges{{2, 3}}));
+  EXPECT_EQ(m.covisibility_weight(0, 1), 0u);
+}
+
+TEST(Map, CovisibilityKeepsTheStrongest) {
+  CovisFixture f(covis_options(2));
+  Map& m = f.m;
+  m.update_covisibility(0);
+  EXPECT_EQ(edges(m, 0), (Edges{{1, 10}, {3, 7}}));
+  // Reverse edges exist for every sharing keyframe, each list capped at 2.
+  EXPECT_EQ(edges(m, 4), (Edges{{0, 7}}));
+  EXPECT_EQ(edges(m, 2), (Edges{{0, 5}}));
+  m.update_covisibility(1);
+  EXPECT_EQ(edges(m, 2), (Edges{{0, 5}, {1, 3}}));
+  CovisibleKeyframe one[1];
+  ASSERT_EQ(m.covisible_keyframes(0, one), 1u);  // a short span gets the strongest
+  EXPECT_EQ(one[0].id, 1u);
+}
+
+TEST(Map, RelativePose) {
+  Map m(small_options());
+  const KfData d = make_kf(4, 1);
+  const SE3d Ta = pose_at(1.0, 0.4);
+  const SE3d Tb = pose_at(-0.5, -1.1);
+  add_kf(m, d, Ta, 0);
+  add_kf(m, d, Tb, 1);
+  const SE3d T_a_b = m.relative_pose(0, 1);
+  EXPECT_TRUE((Ta * T_a_b).isApprox(Tb, 1e-12));
+  const Eigen::Vector3d p_b(0.3, 0.2, 2.0);
+  EXPECT_TRUE((T_a_b * p_b).isApprox(Ta.inverse() * (Tb * p_b), 1e-12));
+  EXPECT_TRUE(m.relative_pose(0, 0).isApprox(SE3d::Identity(), 1e-12));
+  EXPECT_TRUE(m.relative_pose(0, 5).isApprox(SE3d::Identity()));
+}
+
+// ---- allocations ---------------------------------------------------------------------------
+
+TEST(Map, NoAllocationAfterConstruction) {
+  ASSERT_TRUE(platform::alloc::counter_linked());
+  MapOptions o = covis_options(4);
+  Map m(o);
+  const std::size_t bytes = m.memory_bytes();
+  const KfData d = make_kf(40, 1);  // inputs built before counting
+  const geometry::Pinhole K{500, 500, 320, 240};
+  std::vector<PointId> ids(256);
+  std::vector<CovisibleKeyframe> cov(16);
+  std::vector<std::pair<KeyframeId, std::uint32_t>> obs(16);
+  PointView v;
+  SE3d T;
+  double scale = 0.0;
+  std::uint64_t sink = 0;
+
+  const std::uint64_t before = platform::alloc::thread_allocations();
+  for (int k = 0; k < 6; ++k) {
+    const Result<KeyframeId> r =
+        m.add_keyframe(d.input(pose_at(0.1 * k, 0.05 * k), static_cast<std::uint64_t>(k)));
+    sink += r.is_ok() ? r.value() : 0;
+  }
+  for (std::uint32_t i = 0; i < 30; ++i) {
+    const Result<PointId> r = m.add_point(Eigen::Vector3d(0.1 * i, 0.05 * i, 3.0), 0, i);
+    if (!r.is_ok()) continue;
+    for (KeyframeId k = 1; k < 6; ++k) sink += m.add_observation(r.value(), k, i) ? 1 : 0;
+    m.update_point(r.value());
+    m.set_point_position(r.value(), Eigen::Vector3d(0.1 * i - 1.0, 0.5, 2.0));
+  }
+  m.set_keyframe_pose(2, pose_at(0.3, 0.2), 1.1);
+  m.set_keyframe_depth(2, 3, 1.5F, 0.5F);
+  m.set_point_bad(7);
+  for (KeyframeId k = 0; k < 6; ++k) m.update_covisibility(k);
+  sink += m.point_observations(3, obs);
+  sink += m.point_num_observations(3);
+  sink += static_cast<std::uint64_t>(m.relative_pose(0, 3).translation().norm());
+  sink += m.num_keyframes() + m.num_points();
+  sink += m.keyframe_pose(1, T, &scale) ? 1 : 0;
+  sink += m.keyframe_keypoints(1).size() + m.keyframe_descriptors(1).size();
+  sink += static_cast<std::uint64_t>(m.keyframe_t_ns(1)) + m.keyframe_seq(1);
+  sink += m.keyframe_point(1, 2) + m.keyframe_num_keypoints(1);
+  sink += static_cast<std::uint64_t>(m.keyframe_depth(1, 2) + m.keyframe_depth_confidence(1, 2));
+  Eigen::Vector3d p_c;
+  sink += m.keyframe_point_3d(1, 2, K, p_c) ? 1 : 0;
+  sink += m.read_point(3, v) ? 1 : 0;
+  sink += m.point_is_bad(7) ? 1 : 0;
+  sink += m.covisible_keyframes(0, cov) + m.covisibility_weight(0, 1);
+  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 5.0, ids);
+  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 500.0, ids);  // table scan
+  sink += m.query_radius(Eigen::Vector3d(0, 0.5, 2.0), 1.0, ids);
+  sink += m.cell_insert_failures();
+  const std::uint64_t after = platform::alloc::thread_allocations();
+
+  EXPECT_EQ(after - before, 0u) << "sink " << sink;
+  EXPECT_EQ(m.num_keyframes(), 6u);
+  EXPECT_EQ(m.num_points(), 30u);
+  EXPECT_GT(m.covisible_keyframes(0, cov), 0u);
+  EXPECT_EQ(m.memory_bytes(), bytes);
+}
+
+// ---- performance ---------------------------------------------------------------------------
+
+TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
+  // 20k points on the walls, floor and ceiling of an 8 x 3 x 8 room (map units, median
+  // depth ~1-3); cameras inside looking around; 640x480, depth range [0.1, 5].
+  MapOptions o;
+  o.max_keyframes = 2;
+  o.max_points = 20000;
+  o.max_keypoints_per_keyframe = 16384;
+  Map m(o);
+  std::printf("map memory with default options: %.1f MiB\n",
+              static_cast<double>(Map(MapOptions{}).memory_bytes()) / (1024.0 * 1024.0));
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const KfData d = make_kf(16384, 1);
+  KeyframeId kfs[2] = {add_kf(m, d, SE3d::Identity(), 0), add_kf(m, d, SE3d::Identity(), 1)};
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 20000; ++i) {
+    Eigen::Vector3d p(4 * u(rng), 1.5 * u(rng), 4 * u(rng));
+    const int wall = i % 6;
+    p[wall / 2] = (wall % 2 == 0 ? -1.0 : 1.0) * (wall / 2 == 1 ? 1.5 : 4.0);
+    pts.push_back(p);
+    add_pt(m, p, kfs[i / 16384], static_cast<std::uint32_t>(i % 16384));
+  }
+  ASSERT_EQ(m.cell_insert_failures(), 0u);
+  const geometry::Pinhole K{500, 500, 320, 240};
+  std::vector<PointId> out(20000);
+  std::vector<SE3d> poses;
+  for (int i = 0; i < 200; ++i) {
+    const Eigen::Vector3d eye(2.5 * u(rng), 0.8 * u(rng), 2.5 * u(rng));
+    const Eigen::Vector3d target(4 * u(rng), 1.5 * u(rng), 4 * u(rng));
+    poses.push_back(look_at(eye, target, Eigen::Vector3d(0, -1, 0)));
+  }
+  std::size_t total = 0;
+  std::size_t visible = 0;
+  std::vector<double> times;
+  for (int rep = 0; rep < 5; ++rep) {
+    for (const SE3d& T : poses) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::size_t n = m.query_visible(T, K, 640, 480, 0.1, 5.0, out);
+      const auto t1 = std::chrono::steady_clock::now();
+      times.push_back(std::chrono::duration<double, std::micro>(t1 - t0).count());
+      if (rep == 0) {
+        total += n;
+        const SE3d T_c_w = T.inverse();
+        for (const Eigen::Vector3d& p : pts) {
+          const Eigen::Vector3d q = T_c_w * p;
+          if (q.z() < 0.1 || q.z() > 5.0) continue;
+          const Eigen::Vector2d uv = K.project(q);
+          visible += (uv.x() >= 0 && uv.x() < 640 && uv.y() >= 0 && uv.y() < 480) ? 1 : 0;
+        }
+      }
+    }
+  }
+  std::sort(times.begin(), times.end());
+  const double median = times[times.size() / 2];
+  const double p95 = times[times.size() * 95 / 100];
+  std::printf(
+      "query_visible: median %.1f us, p95 %.1f us, max %.1f us; %.0f ids per query, "
+      "returned / visible = %.3f\n",
+      median, p95, times.back(), static_cast<double>(total) / 200.0,
+      static_cast<double>(total) / static_cast<double>(visible));
+  EXPECT_LT(median, 1000.0);  // generous: the target is well under 1 ms on a loaded machine
+  EXPECT_LT(static_cast<double>(total) / static_cast<double>(visible), 1.6);
+}
+
+}  // namespace
+}  // namespace mer::map
