@@ -22,6 +22,7 @@ struct TriangulationOptions {
   double full_confidence_parallax_deg = 6.0;  ///< parallax giving confidence 1
   double max_reprojection_sigmas = 2.5;       ///< reprojection error bound in both views, sigmas
   int max_level_difference = 1;               ///< pyramid levels a match may differ by
+  double max_scale_inconsistency = 1.5;       ///< distance ratio vs keypoint scale ratio tolerance
 
   template <class V>
   void visit(V& v) {
@@ -40,6 +41,10 @@ struct TriangulationOptions {
             options::Range<double>{0.1, 20.0});
     v.field("max_level_difference", max_level_difference,
             "pyramid levels an epipolar match may differ by", options::Range<int>{0, 16});
+    v.field("max_scale_inconsistency", max_scale_inconsistency,
+            "largest factor between the ratio of distances to the two cameras and the ratio "
+            "of the keypoints' pyramid scales",
+            options::Range<double>{1.0, 100.0});
   }
 };
 

@@ -161,6 +161,19 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
     if (p_k.z() <= 0.0) continue;
     if ((K.project(p_k) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > bound * sigma2(kp.level))
       continue;
+    // Scale consistency: the distances to the two cameras must agree with the pyramid
+    // levels the keypoints were found at (a wrong match on repetitive texture often pairs
+    // keypoints whose scales contradict the triangulated distances).
+    {
+      const features::Keypoint& kq = req.views[best_v].keypoints[match_[i * nv + best_v]];
+      const double dist_ratio =
+          (X_w - c_k).norm() / (X_w - req.views[best_v].T_w_c.translation()).norm();
+      const double level_ratio = static_cast<double>(kq.scale) / static_cast<double>(kp.scale);
+      if (dist_ratio * opts_.max_scale_inconsistency < level_ratio ||
+          dist_ratio > level_ratio * opts_.max_scale_inconsistency) {
+        continue;
+      }
+    }
     const double parallax_deg = std::acos(std::clamp(best_cos, -1.0, 1.0)) * kRadToDeg;
     out.depth[i] = static_cast<float>(p_k.z());
     // Confidence: parallax of the widest baseline, more if more views agree.
