@@ -230,13 +230,44 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   r.query_total = num_cand_;
 }
 
+Tracker::RadiusMatch Tracker::search_radius(const Eigen::Vector2d& uv, double r, int min_level,
+                                            int max_level, const features::Descriptor& desc) const {
+  const int cell_px = opts_.match.grid_cell_px;
+  const int x0 = std::max(0, static_cast<int>((uv.x() - r) / cell_px));
+  const int x1 = std::min(grid_cols_ - 1, static_cast<int>((uv.x() + r) / cell_px));
+  const int y0 = std::max(0, static_cast<int>((uv.y() - r) / cell_px));
+  const int y1 = std::min(grid_rows_ - 1, static_cast<int>((uv.y() + r) / cell_px));
+  RadiusMatch m;
+  for (int gy = y0; gy <= y1; ++gy) {
+    for (int gx = x0; gx <= x1; ++gx) {
+      const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
+      for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
+        const int k = grid_items_[static_cast<std::size_t>(it)];
+        const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
+        if (kp.level < min_level || kp.level > max_level) continue;
+        const double dx = kp.x - uv.x();
+        const double dy = kp.y - uv.y();
+        if (dx * dx + dy * dy > r * r) continue;
+        const int d = features::hamming(desc, descs_[static_cast<std::size_t>(k)]);
+        if (d < m.best) {
+          m.second = m.best;
+          m.best = d;
+          m.index = k;
+        } else if (d < m.second) {
+          m.second = d;
+        }
+      }
+    }
+  }
+  return m;
+}
+
 int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) {
   std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
   const Eigen::Vector3d centre = T_c_w.inverse().translation();
   const int levels = extractor_->num_levels();
   const double log_scale =
       std::log(std::max(1.0001, static_cast<double>(extractor_->level_scale(1))));
-  const int cell_px = opts_.match.grid_cell_px;
   const int window = tight ? std::max(0, opts_.match.level_window - 1) : opts_.match.level_window;
   int matches = 0;
   for (int c = 0; c < num_cand_; ++c) {
@@ -260,34 +291,9 @@ int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) 
                      0, levels - 1);
     }
     const double r = radius_px * (pred_level >= 0 ? extractor_->level_scale(pred_level) : 1.0F);
-    const int x0 = std::max(0, static_cast<int>((uv.x() - r) / cell_px));
-    const int x1 = std::min(grid_cols_ - 1, static_cast<int>((uv.x() + r) / cell_px));
-    const int y0 = std::max(0, static_cast<int>((uv.y() - r) / cell_px));
-    const int y1 = std::min(grid_rows_ - 1, static_cast<int>((uv.y() + r) / cell_px));
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    int best_k = kNoMatch;
-    for (int gy = y0; gy <= y1; ++gy) {
-      for (int gx = x0; gx <= x1; ++gx) {
-        const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
-        for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
-          const int k = grid_items_[static_cast<std::size_t>(it)];
-          const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
-          if (pred_level >= 0 && std::abs(kp.level - pred_level) > window) continue;
-          const double dx = kp.x - uv.x();
-          const double dy = kp.y - uv.y();
-          if (dx * dx + dy * dy > r * r) continue;
-          const int d = features::hamming(cand_desc_[ci], descs_[static_cast<std::size_t>(k)]);
-          if (d < best) {
-            second = best;
-            best = d;
-            best_k = k;
-          } else if (d < second) {
-            second = d;
-          }
-        }
-      }
-    }
+    const int lo = pred_level >= 0 ? pred_level - window : 0;
+    const int hi = pred_level >= 0 ? pred_level + window : levels;
+    const auto [best, second, best_k] = search_radius(uv, r, lo, hi, cand_desc_[ci]);
     if (best_k == kNoMatch || best > opts_.match.max_hamming) continue;
     if (second != std::numeric_limits<int>::max() && best > opts_.match.ratio * second) continue;
     const auto bk = static_cast<std::size_t>(best_k);
@@ -546,38 +552,11 @@ void Tracker::set_reference(const hal::Frame& frame) {
 int Tracker::match_reference() {
   std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
   ref_match_.assign(ref_kps_.size(), kNoMatch);
-  const int cell_px = opts_.match.grid_cell_px;
   const double r = opts_.init.search_radius_px;
   for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
-    const Eigen::Vector2d& c = ref_prev_[i];
-    const int x0 = std::max(0, static_cast<int>((c.x() - r) / cell_px));
-    const int x1 = std::min(grid_cols_ - 1, static_cast<int>((c.x() + r) / cell_px));
-    const int y0 = std::max(0, static_cast<int>((c.y() - r) / cell_px));
-    const int y1 = std::min(grid_rows_ - 1, static_cast<int>((c.y() + r) / cell_px));
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    int best_k = kNoMatch;
-    for (int gy = y0; gy <= y1; ++gy) {
-      for (int gx = x0; gx <= x1; ++gx) {
-        const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
-        for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
-          const int k = grid_items_[static_cast<std::size_t>(it)];
-          const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
-          if (std::abs(kp.level - ref_kps_[i].level) > 1) continue;
-          const double dx = kp.x - c.x();
-          const double dy = kp.y - c.y();
-          if (dx * dx + dy * dy > r * r) continue;
-          const int d = features::hamming(ref_descs_[i], descs_[static_cast<std::size_t>(k)]);
-          if (d < best) {
-            second = best;
-            best = d;
-            best_k = k;
-          } else if (d < second) {
-            second = d;
-          }
-        }
-      }
-    }
+    const int level = ref_kps_[i].level;
+    const auto [best, second, best_k] =
+        search_radius(ref_prev_[i], r, level - 1, level + 1, ref_descs_[i]);
     if (best_k == kNoMatch || best > opts_.init.max_hamming) continue;
     if (second != std::numeric_limits<int>::max() && best > opts_.init.ratio * second) continue;
     const auto bk = static_cast<std::size_t>(best_k);

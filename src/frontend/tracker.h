@@ -18,6 +18,7 @@
 /// spin_once() does not allocate.
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -90,7 +91,15 @@ class Tracker {
   const geometry::Pinhole& intrinsics() const { return K_; }
 
  private:
-  struct Candidate;
+  /// Best and second-best descriptor distance among the keypoints within `r` px of `uv` on
+  /// pyramid levels [min_level, max_level]; index -1 when none.
+  struct RadiusMatch {
+    int best = std::numeric_limits<int>::max();
+    int second = std::numeric_limits<int>::max();
+    int index = -1;
+  };
+  RadiusMatch search_radius(const Eigen::Vector2d& uv, double r, int min_level, int max_level,
+                            const features::Descriptor& desc) const;
   void build_grid();
   void gather_queries(const SE3d& T_c_w, TrackingResult& r);
   int project_and_match(const SE3d& T_c_w, double radius_px, bool tight);
@@ -129,7 +138,6 @@ class Tracker {
   std::vector<std::int32_t> grid_fill_;
 
   // Query and match buffers.
-  struct CandidateData;
   std::vector<std::uint32_t> stamp_;  // per map-point: frame stamp it was last queried in
   std::uint32_t frame_stamp_ = 0;
   std::vector<std::uint32_t> query_buf_;
