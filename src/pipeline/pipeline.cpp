@@ -96,6 +96,7 @@ Status Pipeline::init(const std::string& output_dir) {
                             " (capture ring + frames being captured and tracked), found " +
                             std::to_string(camera_.pool().capacity()));
   }
+  if (Status v = map::validate(config_.map); !v.is_ok()) return v;  // e.g. table size
   map_ = std::make_unique<map::Map>(config_.map);
   const hal::CameraIntrinsics& Kc = config_.intrinsics.fx > 0.0 ? config_.intrinsics : K;
   const geometry::Pinhole pinhole{Kc.fx, Kc.fy, Kc.cx, Kc.cy};

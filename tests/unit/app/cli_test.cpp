@@ -119,6 +119,15 @@ TEST(CliBinary, MalformedValueExits2AndNamesTheKey) {
   EXPECT_NE(r.output.find("'soon'"), std::string::npos) << r.output;
 }
 
+TEST(CliBinary, MapTableSizeMustBeAPowerOfTwo) {
+  const auto dir = temp_dir("mer_cli_map_table");
+  const std::string cfg = write_config(dir, "map:\n  cell_table_size: 1000\n");
+  const auto r = run_command(quote(kExe) + " --config " + quote(cfg) + " --max-frames 1");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("map.cell_table_size"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("power of two"), std::string::npos) << r.output;
+}
+
 TEST(CliBinary, UnknownKeyAndOutOfRangeExit2) {
   const auto dir = temp_dir("mer_cli_unknown");
   std::string cfg = write_config(dir, "board:\n  capture_cores: 2\n");
