@@ -1,0 +1,126 @@
+// The tracking stage per frame (extract + query + match + pose + decide) at 640x480 with
+// 1000 features on one core, over a rendered room_orbit sequence. RGB-D mode so every frame
+// is tracked from the first one (the steps and their cost are the same as monocular
+// tracking). Keyframe creation and local BA run between frames, outside the timing, as they
+// run on another thread in mer_slam. Counters: per-frame p50/p99 and per-step means (ms),
+// heap allocations per tracked frame.
+#include <algorithm>
+#include <array>
+#include <memory>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+
+#include "backend/local_ba.h"
+#include "depth/keyframe_builder.h"
+#include "frontend/tracker.h"
+#include "hal/synthetic/synthetic_camera.h"
+#include "platform/alloc_counter.h"
+#include "platform/clock.h"
+
+namespace {
+
+using namespace mer;  // NOLINT(google-build-using-namespace): benchmark file
+
+constexpr int kFrames = 240;  // 8 s of room_orbit at 30 Hz
+constexpr double kFps = 30.0;
+constexpr double kNsToMs = 1e-6;
+
+struct Sequence {
+  std::vector<hal::Frame> frames;
+  geometry::Pinhole K;
+  int width = 0;
+  int height = 0;
+};
+
+const Sequence& sequence() {
+  static const Sequence kSequence = [] {
+    Sequence s;
+    hal::SyntheticOptions o;
+    o.num_frames = kFrames;
+    hal::SyntheticCamera cam("room_orbit", o, false);
+    (void)cam.open(4);
+    const auto& k = cam.intrinsics();
+    s.K = {k.fx, k.fy, k.cx, k.cy};
+    s.width = k.width;
+    s.height = k.height;
+    for (int i = 0; i < kFrames; ++i) {
+      hal::Frame f;
+      f.seq = static_cast<std::uint64_t>(i);
+      f.t_ns = static_cast<std::int64_t>(i / kFps * 1e9);
+      f.gray.create(k.height, k.width, CV_8UC1);
+      f.depth.create(k.height, k.width, CV_32FC1);
+      f.T_w_c_gt = cam.sample_at(i / kFps).T_w_c;
+      f.has_ground_truth = true;
+      cam.render(f.T_w_c_gt, f.gray, &f.depth, static_cast<std::uint64_t>(i));
+      s.frames.push_back(f);
+    }
+    return s;
+  }();
+  return kSequence;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[static_cast<std::size_t>(q * static_cast<double>(v.size() - 1))];
+}
+
+void bm_tracking(benchmark::State& state) {
+  const Sequence& seq = sequence();
+  std::vector<double> frame_ms;
+  std::array<double, static_cast<std::size_t>(frontend::TrackStep::kCount)> step_sum{};
+  std::uint64_t allocs = 0;
+  std::uint64_t tracked = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    map::MapOptions mo;
+    mo.max_keyframes = 128;
+    mo.max_points = 50000;
+    auto map = std::make_unique<map::Map>(mo);
+    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
+                              "rgbd", false);
+    (void)tracker.init();
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2());
+    (void)builder.init();
+    backend::LocalBundleAdjuster ba(backend::LocalBaOptions{}, *map, tracker.level_sigma2(), true);
+    map::KeyframeJob job;
+    job.reserve(tracker.max_keypoints(), seq.width, seq.height);
+    for (const hal::Frame& f : seq.frames) {
+      state.ResumeTiming();
+      const std::uint64_t a0 = platform::alloc::thread_allocations();
+      const std::int64_t t0 = platform::monotonic_now_ns();
+      const frontend::TrackingResult r = tracker.spin_once(f);
+      const std::int64_t t1 = platform::monotonic_now_ns();
+      const std::uint64_t a1 = platform::alloc::thread_allocations();
+      state.PauseTiming();
+      if (r.steady) {
+        frame_ms.push_back(static_cast<double>(t1 - t0) * kNsToMs);
+        for (std::size_t s = 0; s < step_sum.size(); ++s) step_sum[s] += r.step_ns[s] * kNsToMs;
+        allocs += a1 - a0;
+        ++tracked;
+      }
+      if (r.keyframe_job) {
+        tracker.fill_keyframe_job(f, job);
+        const depth::KeyframeBuildReport rep = builder.spin_once(job);
+        if (rep.ok) (void)ba.spin_once(rep.keyframe, job.K);
+      }
+    }
+    state.ResumeTiming();
+  }
+  state.counters["frames"] = static_cast<double>(tracked);
+  state.counters["p50_ms"] = percentile(frame_ms, 0.5);
+  state.counters["p99_ms"] = percentile(frame_ms, 0.99);
+  const double n = tracked > 0 ? static_cast<double>(tracked) : 1.0;
+  for (std::size_t s = 0; s < step_sum.size(); ++s) {
+    state.counters[std::string(frontend::to_string(static_cast<frontend::TrackStep>(s))) + "_ms"] =
+        step_sum[s] / n;
+  }
+  state.counters["allocs_per_frame"] = static_cast<double>(allocs) / n;
+}
+
+}  // namespace
+
+BENCHMARK(bm_tracking)->Unit(benchmark::kMillisecond)->Iterations(1);
+
+BENCHMARK_MAIN();
