@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 
+#include "geometry/lie.h"
 #include "geometry/triangulation.h"
 
 namespace mer::depth {
@@ -16,12 +17,6 @@ constexpr std::size_t kMaxViews = 16;  // views used (depth.neighbours is at mos
 
 bool is_free(std::span<const std::uint32_t> ids, std::size_t i) {
   return ids.empty() || ids[i] == kNoPoint;
-}
-
-Eigen::Matrix3d skew(const Eigen::Vector3d& v) {
-  Eigen::Matrix3d m;
-  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return m;
 }
 
 }  // namespace
@@ -56,7 +51,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
   for (std::size_t vi = 0; vi < nv; ++vi) {
     T_cj_w[vi] = req.views[vi].T_w_c.inverse();
     const SE3d T_cj_ck = T_cj_w[vi] * req.T_w_c;
-    E[vi] = skew(T_cj_ck.translation()) * T_cj_ck.linear();  // x_j^T E x_k = 0
+    E[vi] = geometry::hat(T_cj_ck.translation()) * T_cj_ck.linear();  // x_j^T E x_k = 0
   }
   match_.assign(n * nv, kNoSupport);
   for (std::size_t vi = 0; vi < nv; ++vi) {

@@ -145,10 +145,6 @@ std::vector<float> Tracker::level_sigma2() const {
   return s;
 }
 
-double Tracker::sigma2(int level) const {
-  return extractor_->level_sigma2(level);
-}
-
 // ---- Per-frame building blocks --------------------------------------------------------
 
 void Tracker::build_grid() {
@@ -498,7 +494,6 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     r.keyframe_job = true;
     r.keyframe_reason = static_cast<std::uint8_t>(reason);
     last_reason_ = r.keyframe_reason;
-    pending_keyframe_ = true;
     ++counters_.keyframes_decided;
     ++counters_.keyframe_reasons[static_cast<std::size_t>(reason)];
     MER_LOG_DEBUG("frame %llu: keyframe (%s, inliers %d, kl %.3f)",
@@ -513,7 +508,6 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
 
 void Tracker::keyframe_not_queued() {
   force_keyframe_ = true;
-  pending_keyframe_ = false;
 }
 
 void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const {
@@ -522,8 +516,6 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   job.T_w_c = last_T_w_c_;
   job.K = K_;
   job.reason = last_reason_;
-  job.has_ground_truth = frame.has_ground_truth;
-  job.T_w_c_gt = frame.T_w_c_gt;
   const int n = std::min(static_cast<int>(kps_.size()), job.capacity());
   job.num_keypoints = n;
   std::copy_n(kps_.begin(), n, job.keypoints.begin());

@@ -114,7 +114,6 @@ class Tracker {
   bool focal_from_reference(int matches);
   void update_focal(double f, std::uint64_t seq);
   void fix_focal_at_init(std::uint64_t seq);
-  double sigma2(int level) const;
 
   TrackingOptions opts_;
   map::Map& map_;
@@ -190,7 +189,6 @@ class Tracker {
   int focal_stable_count_ = 0;
 
   // Keyframe decided last (for fill_keyframe_job).
-  bool pending_keyframe_ = false;
   SE3d last_T_w_c_ = SE3d::Identity();
   std::uint8_t last_reason_ = 0;
   bool force_keyframe_ = false;

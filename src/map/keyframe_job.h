@@ -28,8 +28,6 @@ struct KeyframeJob {
   std::vector<std::uint32_t> point_ids;           ///< tracked map point per keypoint, or kNoId
   std::vector<float> sensor_depth;                ///< sensor depth at keypoints (m, 0 = none)
   bool has_sensor_depth = false;                  ///< sensor_depth is filled (RGB-D)
-  bool has_ground_truth = false;                  ///< the source knew the true pose (diagnostics)
-  SE3d T_w_c_gt = SE3d::Identity();               ///< true pose when has_ground_truth
   cv::Mat gray;                                   ///< copy of the image (dense backends)
 
   /// Sizes every buffer for `max_keypoints` keypoints and `width` x `height` images.
