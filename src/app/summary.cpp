@@ -144,6 +144,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
     << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers
+    << ", \"depth_edge_mode\": " << json_string(st.backend_depth_edges)
+    << ", \"depth_edges\": " << ba.depth_edges
     << ", \"mean_ms\": " << num(ba.runs ? ba.total_ms / static_cast<double>(ba.runs) : 0.0)
     << ", \"max_ms\": " << num(ba.max_ms) << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";

@@ -39,9 +39,28 @@ struct ReprojectionCost {
   geometry::Pinhole K;
 };
 
+/// 3D-3D edge along the viewing ray: the map-point's camera z against the keyframe's local
+/// depth d (times the keyframe's depth scale s), divided by the edge sigma.
+struct DepthCost {
+  DepthCost(double depth, double inv_sigma_m) : d(depth), inv_sigma(inv_sigma_m) {}
+
+  template <typename T>
+  bool operator()(const T* q, const T* t, const T* X, const T* s, T* r) const {
+    const Eigen::Quaternion<T> quat(q[3], q[0], q[1], q[2]);
+    const Eigen::Matrix<T, 3, 1> p =
+        quat * Eigen::Matrix<T, 3, 1>(X[0], X[1], X[2]) + Eigen::Matrix<T, 3, 1>(t[0], t[1], t[2]);
+    r[0] = (p[2] - s[0] * T(d)) * T(inv_sigma);
+    return true;
+  }
+
+  double d;          ///< local depth, keyframe depth units
+  double inv_sigma;  ///< 1 / edge sigma, 1/m
+};
+
 struct PoseBlock {
   std::array<double, 4> q{};  // x, y, z, w (Eigen storage order)
   std::array<double, 3> t{};
+  double depth_scale = 1.0;  // s of the keyframe's local depth
   bool fixed = false;
 };
 
@@ -49,16 +68,20 @@ struct Observation {
   map::KeyframeId kf;
   map::PointId p;
   ceres::ResidualBlockId id;
+  bool depth = false;  // a 3D-3D edge (else 3D-2D)
 };
 
 }  // namespace
 
 LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map,
-                                         std::vector<float> level_sigma2, bool deterministic)
+                                         std::vector<float> level_sigma2, bool deterministic,
+                                         bool metric_depth)
     : opts_(opts),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
-      deterministic_(deterministic) {}
+      deterministic_(deterministic),
+      depth_mode_(opts.depth_edges == "auto" ? (metric_depth ? "metric" : "off")
+                                             : opts.depth_edges) {}
 
 LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
   LocalBaReport rep;
@@ -129,6 +152,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   ceres::EigenQuaternionManifold quat_manifold;
   ceres::HuberLoss huber(opts_.huber_sigmas);
   std::vector<Observation> residuals;
+  const bool use_depth = depth_mode_ != "off";
   for (auto& [p, X] : points) {
     const std::size_t no = map_.point_observations(p, obs);
     for (std::size_t o = 0; o < no; ++o) {
@@ -145,7 +169,18 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       PoseBlock& b = it->second;
       const ceres::ResidualBlockId rid =
           problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
-      residuals.push_back({obs[o].first, p, rid});
+      residuals.push_back({obs[o].first, p, rid, false});
+      if (!use_depth) continue;
+      const float d = map_.keyframe_depth(obs[o].first, obs[o].second);
+      const float conf = map_.keyframe_depth_confidence(obs[o].first, obs[o].second);
+      if (d <= 0.0F || conf <= 0.0F) continue;
+      const double sigma = opts_.depth_sigma_rel * d / std::sqrt(static_cast<double>(conf));
+      auto* dcost = new ceres::AutoDiffCostFunction<DepthCost, 1, 4, 3, 3, 1>(
+          new DepthCost(d, 1.0 / sigma));
+      const ceres::ResidualBlockId did = problem.AddResidualBlock(
+          dcost, &huber, b.q.data(), b.t.data(), X.data(), &b.depth_scale);
+      residuals.push_back({obs[o].first, p, did, true});
+      ++rep.depth_edges;
     }
   }
   for (auto& [id, b] : poses) {
@@ -155,10 +190,15 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       problem.SetParameterBlockConstant(b.q.data());
       problem.SetParameterBlockConstant(b.t.data());
     }
+    // Metric depth keeps its scale; in scaled mode a free keyframe's scale is optimized
+    // (a fixed keyframe's scale stays 1: its depth is already aligned to the map).
+    if (problem.HasParameterBlock(&b.depth_scale) && (b.fixed || depth_mode_ != "scaled")) {
+      problem.SetParameterBlockConstant(&b.depth_scale);
+    }
   }
   rep.keyframes = static_cast<int>(window.size());
   rep.points = static_cast<int>(points.size());
-  rep.observations = static_cast<int>(residuals.size());
+  rep.observations = static_cast<int>(residuals.size()) - rep.depth_edges;
   if (residuals.empty()) return rep;
 
   ceres::Solver::Options sopts;
@@ -175,12 +215,13 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
   for (const Observation& o : residuals) {
     double cost = 0.0;
+    const double chi2 = o.depth ? opts_.depth_outlier_chi2 : opts_.outlier_chi2;
     if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) ||
-        2.0 * cost > opts_.outlier_chi2) {
+        2.0 * cost > chi2) {
       problem.RemoveResidualBlock(o.id);
-      ++point_obs[o.p].second;
+      if (!o.depth) ++point_obs[o.p].second;
       ++rep.outliers;
-    } else {
+    } else if (!o.depth) {
       ++point_obs[o.p].first;
     }
   }
@@ -195,6 +236,17 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
         Eigen::Quaterniond(b.q[3], b.q[0], b.q[1], b.q[2]).normalized().toRotationMatrix();
     T_c_w.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
     map_.set_keyframe_pose(id, T_c_w.inverse());
+    // The optimized depth scale is folded into the keyframe's local depth.
+    if (depth_mode_ == "scaled" && b.depth_scale > 0.0 && b.depth_scale != 1.0) {
+      const auto nk = static_cast<std::uint32_t>(map_.keyframe_keypoints(id).size());
+      for (std::uint32_t k = 0; k < nk; ++k) {
+        const float d = map_.keyframe_depth(id, k);
+        if (d > 0.0F) {
+          map_.set_keyframe_depth(id, k, d * static_cast<float>(b.depth_scale),
+                                  map_.keyframe_depth_confidence(id, k));
+        }
+      }
+    }
   }
   for (const auto& [p, X] : points) {
     const auto c = point_obs[p];
@@ -210,6 +262,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   ++totals_.runs;
   totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
   totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
+  totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);
   totals_.total_ms += rep.ms;
   totals_.max_ms = std::max(totals_.max_ms, rep.ms);
   return rep;

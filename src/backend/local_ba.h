@@ -4,8 +4,12 @@
 /// the newest keyframe and its most covisible neighbours (`window_keyframes`) and every
 /// map-point they observe are optimized; other keyframes observing those points
 /// (`max_fixed_keyframes`, most shared points first) are held fixed and anchor the gauge.
-/// Residuals are 3D-2D reprojection errors weighted by the keypoint's pyramid sigma, with a
-/// Huber kernel. A first solve with all observations is followed by a second one without
+/// Residuals are 3D-2D reprojection errors weighted by the keypoint's pyramid sigma and
+/// 3D-3D edges between a keyframe's local point (its depth-inference depth at the keypoint)
+/// and the map-point, along the viewing ray (the lateral part is the 3D-2D edge), weighted by
+/// the depth confidence; both with a Huber kernel. In `scaled` mode each keyframe's local
+/// depth carries its own scale, optimized with the poses (the Sim(3)-style handling of
+/// monocular depth whose scale is only known up to the alignment). A first solve with all observations is followed by a second one without
 /// the observations it found to be outliers; points with too few consistent observations
 /// are culled. Bounded by iterations and wall time. The optimized poses and positions are
 /// written back to the map (which the tracker reads at its next frame).
@@ -13,7 +17,10 @@
 /// Runs on the keyframe-creation thread, after the keyframe is inserted; it is the map's
 /// writer while it runs.
 
+#include <array>
 #include <cstdint>
+#include <string>
+#include <string_view>
 #include <vector>
 
 #include "core/options.h"
@@ -21,6 +28,10 @@
 #include "map/map.h"
 
 namespace mer::backend {
+
+/// How keyframe depth enters the optimization.
+inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", "metric",
+                                                                 "scaled"};
 
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
@@ -32,6 +43,10 @@ struct LocalBaOptions {
   double huber_sigmas = 2.45;       ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
   double outlier_chi2 = 5.991;      ///< squared error / sigma^2 above this is an outlier
   int min_inlier_observations = 2;  ///< points with fewer consistent observations are culled
+  std::string depth_edges = "auto";  ///< 3D-3D edges: auto (metric in rgbd mode, else off),
+                                     ///< off, metric (depth as is), scaled (per-keyframe scale)
+  double depth_sigma_rel = 0.01;     ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
+  double depth_outlier_chi2 = 3.841;  ///< squared depth error / sigma^2 above this: outlier
 
   template <class V>
   void visit(V& v) {
@@ -52,6 +67,17 @@ struct LocalBaOptions {
             options::Range<double>{0.1, 1000.0});
     v.field("min_inlier_observations", min_inlier_observations,
             "points with fewer consistent observations are culled", options::Range<int>{1, 100});
+    v.field("depth_edges", depth_edges,
+            "3D-3D edges from keyframe depth: auto (metric in rgbd mode, off in mono), off, "
+            "metric (depth taken as is), scaled (each keyframe's depth scale optimized)",
+            options::OneOf{kDepthEdgeModes});
+    v.field("depth_sigma_rel", depth_sigma_rel,
+            "sigma of a 3D-3D edge at depth confidence 1, as a fraction of the depth "
+            "(divided by sqrt(confidence))",
+            options::Range<double>{1e-5, 10.0});
+    v.field("depth_outlier_chi2", depth_outlier_chi2,
+            "squared 3D-3D error / sigma^2 above this is an outlier",
+            options::Range<double>{0.1, 1000.0});
   }
 };
 
@@ -62,7 +88,8 @@ struct LocalBaReport {
   int fixed_keyframes = 0;
   int points = 0;
   int observations = 0;
-  int outliers = 0;
+  int depth_edges = 0;  ///< 3D-3D edges in the problem
+  int outliers = 0;     ///< 3D-2D and 3D-3D edges removed as outliers
   int culled_points = 0;
   double initial_cost = 0.0;
   double final_cost = 0.0;
@@ -74,6 +101,7 @@ struct LocalBaTotals {
   std::uint64_t runs = 0;
   std::uint64_t culled_points = 0;
   std::uint64_t outliers = 0;
+  std::uint64_t depth_edges = 0;
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -82,9 +110,13 @@ struct LocalBaTotals {
 class LocalBundleAdjuster {
  public:
   /// `deterministic` (lockstep replay) drops the wall-time cap: a solve cut by the clock
-  /// would make the result depend on the machine's load.
+  /// would make the result depend on the machine's load. `metric_depth`: keyframe depth is
+  /// in map units from a sensor (rgbd mode), which `depth_edges: auto` uses as is.
   LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map, std::vector<float> level_sigma2,
-                      bool deterministic = false);
+                      bool deterministic = false, bool metric_depth = false);
+
+  /// The 3D-3D edge mode in effect (`auto` resolved): "off", "metric" or "scaled".
+  const std::string& depth_edge_mode() const { return depth_mode_; }
 
   /// Optimizes the window around `kf` with intrinsics `K`.
   LocalBaReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
@@ -96,6 +128,7 @@ class LocalBundleAdjuster {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   bool deterministic_;
+  std::string depth_mode_;
   LocalBaTotals totals_;
 };
 

@@ -16,8 +16,12 @@ constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a poi
 }  // namespace
 
 KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
-                                 std::vector<float> level_sigma2)
-    : opts_(opts), mode_(std::move(mode)), map_(map), level_sigma2_(std::move(level_sigma2)) {}
+                                 std::vector<float> level_sigma2, double metric_depth_sigma_rel)
+    : opts_(opts),
+      mode_(std::move(mode)),
+      map_(map),
+      level_sigma2_(std::move(level_sigma2)),
+      metric_depth_sigma_rel_(metric_depth_sigma_rel) {}
 
 Status KeyframeBuilder::init() {
   std::string backend = opts_.backend;
@@ -27,6 +31,7 @@ Status KeyframeBuilder::init() {
       return invalid_argument("key 'depth.backend': 'rgbd' needs pipeline.mode rgbd");
     }
     backend_ = std::make_unique<RgbdDepth>(opts_.rgbd);
+    fit_depth_ = metric_depth_sigma_rel_ > 0.0;
   } else {
     backend_ = std::make_unique<TriangulationDepth>(opts_.triangulation);
   }
@@ -41,6 +46,8 @@ Status KeyframeBuilder::init() {
   obs_pose_.resize(kMaxObservationsRead);
   obs_uv_.resize(kMaxObservationsRead);
   obs_w_.resize(kMaxObservationsRead);
+  obs_depth_.resize(kMaxObservationsRead);
+  obs_depth_w_.resize(kMaxObservationsRead);
   neighbour_points_.resize(static_cast<std::size_t>(opts_.neighbours));
   for (auto& v : neighbour_points_) v.resize(n);
   views_.reserve(static_cast<std::size_t>(opts_.neighbours));
@@ -93,9 +100,20 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
     obs_uv_[used] = Eigen::Vector2d(kp.x, kp.y);
     obs_w_[used] = 1.0 / level_sigma2_[static_cast<std::size_t>(std::clamp<int>(
                              kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1))];
+    obs_depth_[used] = 0.0;
+    obs_depth_w_[used] = 0.0;
+    if (fit_depth_) {
+      const double d = map_.keyframe_depth(obs_[o].first, obs_[o].second);
+      const double c = map_.keyframe_depth_confidence(obs_[o].first, obs_[o].second);
+      if (d > 0.0 && c > 0.0) {
+        const double sigma = metric_depth_sigma_rel_ * d / std::sqrt(c);
+        obs_depth_[used] = d;
+        obs_depth_w_[used] = 1.0 / (sigma * sigma);
+      }
+    }
     ++used;
   }
-  if (used < 2) return;
+  if (used < 2 && !(used == 1 && obs_depth_w_[0] > 0.0)) return;
   for (int it = 0; it < kPointRefineIterations; ++it) {
     Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
     Eigen::Vector3d g = Eigen::Vector3d::Zero();
@@ -109,6 +127,11 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
       const Eigen::Matrix<double, 2, 3> J = J_p * obs_pose_[o].linear();
       H += obs_w_[o] * J.transpose() * J;
       g += obs_w_[o] * J.transpose() * r;
+      if (obs_depth_w_[o] > 0.0) {  // 3D-3D along the ray: d z / d X = row 2 of R_c_w
+        const Eigen::RowVector3d J_z = obs_pose_[o].linear().row(2);
+        H += obs_depth_w_[o] * J_z.transpose() * J_z;
+        g += obs_depth_w_[o] * J_z.transpose() * (pc.z() - obs_depth_[o]);
+      }
     }
     const Eigen::Vector3d dx = H.ldlt().solve(-g);
     if (!dx.allFinite()) return;
@@ -122,6 +145,8 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
     const Eigen::Vector3d pc = obs_pose_[o] * X;
     if (pc.z() <= 0.0) return;
     if ((K.project(pc) - obs_uv_[o]).squaredNorm() * obs_w_[o] > bound) return;
+    const double dz = pc.z() - obs_depth_[o];
+    if (obs_depth_w_[o] > 0.0 && dz * dz * obs_depth_w_[o] > bound) return;
   }
   map_.set_point_position(p, X);
 }

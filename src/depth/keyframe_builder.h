@@ -50,8 +50,11 @@ struct KeyframeBuildTotals {
 class KeyframeBuilder {
  public:
   /// `mode` is "mono" or "rgbd"; `level_sigma2` the keypoint variance per pyramid level.
+  /// `metric_depth_sigma_rel` > 0: with metric (sensor) depth, structure refinement also fits
+  /// each observing keyframe's depth, with this sigma as a fraction of the depth at
+  /// confidence 1 (the back end's 3D-3D edge sigma, so both weigh depth alike).
   KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
-                  std::vector<float> level_sigma2);
+                  std::vector<float> level_sigma2, double metric_depth_sigma_rel = 0.0);
 
   /// Creates the backend; error when the option names a backend the mode cannot run.
   Status init();
@@ -70,6 +73,8 @@ class KeyframeBuilder {
   std::string mode_;
   map::Map& map_;
   std::vector<float> level_sigma2_;
+  double metric_depth_sigma_rel_;
+  bool fit_depth_ = false;  // refinement fits metric keyframe depth
   std::unique_ptr<DepthInference> backend_;
   KeyframeBuildTotals totals_;
   // scratch
@@ -86,6 +91,8 @@ class KeyframeBuilder {
   std::vector<SE3d> obs_pose_;
   std::vector<Eigen::Vector2d> obs_uv_;
   std::vector<double> obs_w_;
+  std::vector<double> obs_depth_;    // keyframe depth of the observation (0: none)
+  std::vector<double> obs_depth_w_;  // 1 / depth sigma^2
 };
 
 }  // namespace mer::depth

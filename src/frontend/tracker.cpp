@@ -42,13 +42,26 @@ double median_of(std::vector<double>& v) {
   return *mid;
 }
 
-float sample_depth(const cv::Mat& depth, float x, float y) {
+/// Sensor depth at sub-pixel (x, y): bilinear over the 2x2 pixels around it. 0 (no reading)
+/// outside the image, where a pixel has no depth, or across a depth edge (the four depths
+/// differ by more than `max_step` relative): at an occlusion boundary, where corners are
+/// found, an interpolated or nearest depth belongs to neither surface.
+float sample_depth(const cv::Mat& depth, float x, float y, double max_step) {
   if (depth.empty()) return 0.0F;
-  const int u = static_cast<int>(std::lround(x));
-  const int v = static_cast<int>(std::lround(y));
-  if (u < 0 || v < 0 || u >= depth.cols || v >= depth.rows) return 0.0F;
-  const float d = depth.at<float>(v, u);
-  return std::isfinite(d) ? d : 0.0F;
+  const auto u0 = static_cast<int>(std::floor(x));
+  const auto v0 = static_cast<int>(std::floor(y));
+  if (u0 < 0 || v0 < 0 || u0 + 1 >= depth.cols || v0 + 1 >= depth.rows) return 0.0F;
+  const float d00 = depth.at<float>(v0, u0);
+  const float d01 = depth.at<float>(v0, u0 + 1);
+  const float d10 = depth.at<float>(v0 + 1, u0);
+  const float d11 = depth.at<float>(v0 + 1, u0 + 1);
+  const float lo = std::min({d00, d01, d10, d11});
+  const float hi = std::max({d00, d01, d10, d11});
+  if (!(lo > 0.0F) || !std::isfinite(hi)) return 0.0F;
+  if (hi - lo > static_cast<float>(max_step) * lo) return 0.0F;
+  const float a = x - static_cast<float>(u0);
+  const float b = y - static_cast<float>(v0);
+  return (1.0F - b) * ((1.0F - a) * d00 + a * d01) + b * ((1.0F - a) * d10 + a * d11);
 }
 
 }  // namespace
@@ -524,7 +537,7 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   job.has_sensor_depth = !frame.depth.empty();
   for (int i = 0; i < n && job.has_sensor_depth; ++i) {
     const auto ui = static_cast<std::size_t>(i);
-    job.sensor_depth[ui] = sample_depth(frame.depth, kps_[ui].x, kps_[ui].y);
+    job.sensor_depth[ui] = sample_depth(frame.depth, kps_[ui].x, kps_[ui].y, opts_.rgbd_max_depth_step);
   }
   if (job.gray.size() == frame.gray.size()) frame.gray.copyTo(job.gray);
 }
@@ -745,7 +758,7 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
   std::vector<float> conf(kps_.size(), 0.0F);
   int valid = 0;
   for (std::size_t i = 0; i < kps_.size(); ++i) {
-    const float d = sample_depth(frame.depth, kps_[i].x, kps_[i].y);
+    const float d = sample_depth(frame.depth, kps_[i].x, kps_[i].y, opts_.rgbd_max_depth_step);
     if (d < kRgbdMinDepthM || d > kRgbdMaxDepthM) continue;
     depth[i] = d;
     conf[i] = 1.0F;

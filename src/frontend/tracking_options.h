@@ -123,6 +123,8 @@ struct TrackingOptions {
   double query_far = 4.0;  ///< Q_S depth range: this many times the median tracked depth
   int min_inliers = 25;    ///< fewer PnP inliers: the frame is lost
   int busy_work_us = 0;    ///< extra busy-wait per frame, us (load tests of the drop policy)
+  double rgbd_max_depth_step = 0.03;  ///< sensor depth at a keypoint: relative step across its
+                                      ///< 2x2 pixels above which it is a depth edge (refused)
 
   template <class V>
   void visit(V& v) {
@@ -148,6 +150,10 @@ struct TrackingOptions {
     v.field("busy_work_us", busy_work_us,
             "extra busy-wait per frame, us (simulates a heavier tracker; 0 in normal use)",
             options::Range<int>{0, 10000000});
+    v.field("rgbd_max_depth_step", rgbd_max_depth_step,
+            "RGB-D: sensor depth is interpolated over the keypoint's 2x2 pixels; a relative "
+            "depth step among them above this marks a depth edge and the reading is refused",
+            options::Range<double>{0.0, 100.0});
   }
 };
 

@@ -104,11 +104,13 @@ Status Pipeline::init(const std::string& output_dir) {
       std::make_unique<frontend::Tracker>(config_.tracking, *map_, pinhole, K.width, K.height,
                                           config_.pipeline.mode, config_.pipeline.focal == "auto");
   if (Status t = tracker_->init(); !t.is_ok()) return t;
-  builder_ = std::make_unique<depth::KeyframeBuilder>(config_.depth, config_.pipeline.mode, *map_,
-                                                      tracker_->level_sigma2());
+  builder_ = std::make_unique<depth::KeyframeBuilder>(
+      config_.depth, config_.pipeline.mode, *map_, tracker_->level_sigma2(),
+      config_.backend.depth_edges == "off" ? 0.0 : config_.backend.depth_sigma_rel);
   if (Status d = builder_->init(); !d.is_ok()) return d;
   ba_ = std::make_unique<backend::LocalBundleAdjuster>(
-      config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep);
+      config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,
+      builder_->backend_name() == "rgbd");
   jobs_.resize(kKeyframeJobs);
   for (auto& j : jobs_) j.reserve(tracker_->max_keypoints(), K.width, K.height);
   const auto trace = static_cast<std::size_t>(config_.telemetry.trace_capacity);
@@ -196,6 +198,7 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.mapping = builder_->totals();
   stats_.backend = ba_->totals();
   stats_.depth_backend = std::string(builder_->backend_name());
+  stats_.backend_depth_edges = ba_->depth_edge_mode();
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
 }
 

@@ -101,6 +101,7 @@ struct PipelineStats {
   depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
   std::string depth_backend;                 ///< depth inference backend in use
+  std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
   std::vector<StageLatency> tracking_steps;  ///< tracking breakdown (extract, query, ...)
   std::uint64_t pool_exhausted = 0;          ///< acquire found every frame buffer in use
   std::uint64_t output_overflows = 0;        ///< results lost because the output ring was full
