@@ -145,7 +145,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
     << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers
     << ", \"depth_edge_mode\": " << json_string(st.backend_depth_edges)
-    << ", \"depth_edges\": " << ba.depth_edges
+    << ", \"depth_edges\": " << ba.depth_edges << ", \"aborted\": " << ba.aborted
+    << ", \"timed_out\": " << ba.timed_out << ", \"overruns\": " << ba.overruns
     << ", \"mean_ms\": " << num(ba.runs ? ba.total_ms / static_cast<double>(ba.runs) : 0.0)
     << ", \"max_ms\": " << num(ba.max_ms) << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";

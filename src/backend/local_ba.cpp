@@ -1,5 +1,7 @@
 #include "backend/local_ba.h"
 
+#include "backend/ba_residuals.h"
+
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -7,7 +9,6 @@
 #include <unordered_map>
 
 #include <ceres/ceres.h>
-#include <ceres/rotation.h>
 
 namespace mer::backend {
 namespace {
@@ -16,45 +17,36 @@ constexpr std::size_t kMaxCovisibleRead = 128;    // covisible neighbours read p
 constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
 constexpr double kMsPerS = 1000.0;
 
-/// Reprojection residual of a world point in a camera with pose q_c_w (x, y, z, w), t_c_w,
-/// divided by the keypoint sigma.
-struct ReprojectionCost {
-  ReprojectionCost(double u_px, double v_px, double inv_sigma_px, const geometry::Pinhole& cam)
-      : u(u_px), v(v_px), inv_sigma(inv_sigma_px), K(cam) {}
+/// Stops a solve between iterations on an abort request or past the run's deadline.
+class StopCallback final : public ceres::IterationCallback {
+ public:
+  using Clock = std::chrono::steady_clock;
+  StopCallback(const std::atomic<bool>& abort, std::atomic<int>& iterations,
+               Clock::time_point deadline, bool use_deadline)
+      : abort_(abort), iterations_(iterations), deadline_(deadline), use_deadline_(use_deadline) {}
 
-  template <typename T>
-  bool operator()(const T* q, const T* t, const T* X, T* r) const {
-    const Eigen::Quaternion<T> quat(q[3], q[0], q[1], q[2]);
-    const Eigen::Matrix<T, 3, 1> p =
-        quat * Eigen::Matrix<T, 3, 1>(X[0], X[1], X[2]) + Eigen::Matrix<T, 3, 1>(t[0], t[1], t[2]);
-    if (p[2] <= T(0)) return false;
-    r[0] = (T(K.fx) * p[0] / p[2] + T(K.cx) - T(u)) * T(inv_sigma);
-    r[1] = (T(K.fy) * p[1] / p[2] + T(K.cy) - T(v)) * T(inv_sigma);
-    return true;
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
+    if (summary.iteration > 0) iterations_.fetch_add(1, std::memory_order_relaxed);
+    // SOLVER_TERMINATE_SUCCESSFULLY keeps the parameters of the last accepted iteration.
+    return check() ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
   }
-
-  double u;          ///< observed column, px
-  double v;          ///< observed row, px
-  double inv_sigma;  ///< 1 / keypoint sigma, 1/px
-  geometry::Pinhole K;
-};
-
-/// 3D-3D edge along the viewing ray: the map-point's camera z against the keyframe's local
-/// depth d (times the keyframe's depth scale s), divided by the edge sigma.
-struct DepthCost {
-  DepthCost(double depth, double inv_sigma_m) : d(depth), inv_sigma(inv_sigma_m) {}
-
-  template <typename T>
-  bool operator()(const T* q, const T* t, const T* X, const T* s, T* r) const {
-    const Eigen::Quaternion<T> quat(q[3], q[0], q[1], q[2]);
-    const Eigen::Matrix<T, 3, 1> p =
-        quat * Eigen::Matrix<T, 3, 1>(X[0], X[1], X[2]) + Eigen::Matrix<T, 3, 1>(t[0], t[1], t[2]);
-    r[0] = (p[2] - s[0] * T(d)) * T(inv_sigma);
-    return true;
+  /// Polls the abort request and the deadline; true (and sticky) once the run must stop.
+  bool check() {
+    if (!aborted && abort_.load(std::memory_order_relaxed)) aborted = true;
+    if (!timed_out && use_deadline_ && Clock::now() >= deadline_) timed_out = true;
+    return stop();
   }
+  /// True once the run must not start another solve.
+  bool stop() const { return aborted || timed_out; }
 
-  double d;          ///< local depth, keyframe depth units
-  double inv_sigma;  ///< 1 / edge sigma, 1/m
+  bool aborted = false;
+  bool timed_out = false;
+
+ private:
+  const std::atomic<bool>& abort_;
+  std::atomic<int>& iterations_;
+  Clock::time_point deadline_;
+  bool use_deadline_;
 };
 
 struct PoseBlock {
@@ -86,7 +78,12 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
 LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
   LocalBaReport rep;
   if (!opts_.enabled) return rep;
+  abort_.store(false, std::memory_order_relaxed);
+  iterations_.store(0, std::memory_order_relaxed);
   const auto t0 = std::chrono::steady_clock::now();
+  const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double, std::milli>(opts_.max_time_ms));
+  StopCallback stop(abort_, iterations_, t0 + budget, !deterministic_);
 
   // 1. Window: the new keyframe and its most covisible neighbours.
   std::vector<map::CovisibleKeyframe> covis(kMaxCovisibleRead);
@@ -147,9 +144,10 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   // 3. Problem.
   ceres::Problem::Options popts;
   popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.enable_fast_removal = true;  // outlier removal is O(1) per block
   popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(popts);
-  ceres::EigenQuaternionManifold quat_manifold;
+  RotationManifold quat_manifold;
   ceres::HuberLoss huber(opts_.huber_sigmas);
   std::vector<Observation> residuals;
   const bool use_depth = depth_mode_ != "off";
@@ -164,8 +162,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       const auto level = static_cast<std::size_t>(
           std::clamp<int>(kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
       const double inv_sigma = 1.0 / std::sqrt(static_cast<double>(level_sigma2_[level]));
-      auto* cost = new ceres::AutoDiffCostFunction<ReprojectionCost, 2, 4, 3, 3>(
-          new ReprojectionCost(kp.x, kp.y, inv_sigma, K));
+      auto* cost = new ReprojectionCost(kp.x, kp.y, inv_sigma, K);
       PoseBlock& b = it->second;
       const ceres::ResidualBlockId rid =
           problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
@@ -175,8 +172,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       const float conf = map_.keyframe_depth_confidence(obs[o].first, obs[o].second);
       if (d <= 0.0F || conf <= 0.0F) continue;
       const double sigma = opts_.depth_sigma_rel * d / std::sqrt(static_cast<double>(conf));
-      auto* dcost = new ceres::AutoDiffCostFunction<DepthCost, 1, 4, 3, 3, 1>(
-          new DepthCost(d, 1.0 / sigma));
+      auto* dcost = new DepthCost(d, 1.0 / sigma);
       const ceres::ResidualBlockId did = problem.AddResidualBlock(
           dcost, &huber, b.q.data(), b.t.data(), X.data(), &b.depth_scale);
       residuals.push_back({obs[o].first, p, did, true});
@@ -202,18 +198,26 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   if (residuals.empty()) return rep;
 
   ceres::Solver::Options sopts;
-  sopts.linear_solver_type = ceres::SPARSE_SCHUR;
+  sopts.linear_solver_type = ceres::DENSE_SCHUR;
   sopts.max_num_iterations = opts_.max_iterations;
-  if (!deterministic_) sopts.max_solver_time_in_seconds = opts_.max_time_ms / kMsPerS;
   sopts.num_threads = 1;
   sopts.logging_type = ceres::SILENT;
+  sopts.callbacks.push_back(&stop);
+  auto remaining_s = [&] {
+    const double used_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return std::max(0.0, opts_.max_time_ms - used_ms) / kMsPerS;
+  };
+  if (!deterministic_) sopts.max_solver_time_in_seconds = remaining_s();
   ceres::Solver::Summary summary;
-  ceres::Solve(sopts, &problem, &summary);
+  if (!stop.check()) ceres::Solve(sopts, &problem, &summary);
   rep.initial_cost = summary.initial_cost;
 
-  // 4. Outliers out, solve again.
+  // 4. Outliers out, solve again. Not after a pre-empted solve: unconverged residuals would
+  //    make inliers look like outliers; the progress made is written back as it is.
   std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
   for (const Observation& o : residuals) {
+    if (stop.stop()) break;
     double cost = 0.0;
     const double chi2 = o.depth ? opts_.depth_outlier_chi2 : opts_.outlier_chi2;
     if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) ||
@@ -225,7 +229,10 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       ++point_obs[o.p].first;
     }
   }
-  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0) ceres::Solve(sopts, &problem, &summary);
+  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check()) {
+    if (!deterministic_) sopts.max_solver_time_in_seconds = remaining_s();
+    ceres::Solve(sopts, &problem, &summary);
+  }
   rep.final_cost = summary.final_cost;
 
   // 5. Write back.
@@ -248,7 +255,12 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       }
     }
   }
+  const bool classified = !stop.stop() || !point_obs.empty();
   for (const auto& [p, X] : points) {
+    if (!classified) {
+      map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+      continue;
+    }
     const auto c = point_obs[p];
     if (c.first < opts_.min_inlier_observations && c.second > 0) {
       map_.set_point_bad(p);
@@ -258,8 +270,14 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
     if (c.first > 0) map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
   }
   rep.ran = true;
+  rep.aborted = stop.aborted;
+  rep.iterations = iterations_.load(std::memory_order_relaxed);
+  rep.timed_out = stop.timed_out;
   rep.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   ++totals_.runs;
+  totals_.aborted += rep.aborted ? 1U : 0U;
+  totals_.timed_out += rep.timed_out ? 1U : 0U;
+  totals_.overruns += rep.ms > opts_.max_time_ms ? 1U : 0U;
   totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
   totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
   totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);

@@ -18,6 +18,7 @@
 /// writer while it runs.
 
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -39,7 +40,7 @@ struct LocalBaOptions {
   int window_keyframes = 8;         ///< keyframes optimized (the new one + most covisible)
   int max_fixed_keyframes = 16;     ///< keyframes held fixed (most shared points first)
   int max_iterations = 10;          ///< Levenberg-Marquardt iterations per solve
-  double max_time_ms = 60.0;        ///< wall-time cap of one solve, ms
+  double max_time_ms = 50.0;        ///< wall-time budget of one run (all solves), ms
   double huber_sigmas = 2.45;       ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
   double outlier_chi2 = 5.991;      ///< squared error / sigma^2 above this is an outlier
   int min_inlier_observations = 2;  ///< points with fewer consistent observations are culled
@@ -59,7 +60,8 @@ struct LocalBaOptions {
     v.field("max_iterations", max_iterations, "Levenberg-Marquardt iterations per solve",
             options::Range<int>{1, 1000});
     v.field("max_time_ms", max_time_ms,
-            "wall-time cap of one solve, ms (not applied in lockstep: results stay deterministic)",
+            "wall-time budget of one run, all solves included, ms; runs over it are counted "
+            "(not applied in lockstep: results stay deterministic)",
             options::Range<double>{1.0, 100000.0});
     v.field("huber_sigmas", huber_sigmas, "Huber kernel width, keypoint sigmas",
             options::Range<double>{0.1, 100.0});
@@ -94,6 +96,9 @@ struct LocalBaReport {
   double initial_cost = 0.0;
   double final_cost = 0.0;
   double ms = 0.0;
+  int iterations = 0;      ///< solver iterations, all solves
+  bool aborted = false;    ///< stopped by request_abort (the progress made is kept)
+  bool timed_out = false;  ///< stopped by the wall-time budget (the progress made is kept)
 };
 
 /// Totals over a run (summary.json `backend`).
@@ -102,6 +107,9 @@ struct LocalBaTotals {
   std::uint64_t culled_points = 0;
   std::uint64_t outliers = 0;
   std::uint64_t depth_edges = 0;
+  std::uint64_t aborted = 0;    ///< runs pre-empted by request_abort
+  std::uint64_t timed_out = 0;  ///< runs stopped by the wall-time budget
+  std::uint64_t overruns = 0;   ///< runs that took longer than max_time_ms
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -121,6 +129,14 @@ class LocalBundleAdjuster {
   /// Optimizes the window around `kf` with intrinsics `K`.
   LocalBaReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
 
+  /// Pre-empts the run in progress (any thread; lock-free): it stops after the current
+  /// solver iteration, keeps the progress made and returns. A run clears the request when it
+  /// starts, so a request between runs is dropped: it only ever shortens the current run.
+  void request_abort() noexcept { abort_.store(true, std::memory_order_relaxed); }
+
+  /// Solver iterations completed so far by the current (or last) run; any thread.
+  int iterations_in_run() const noexcept { return iterations_.load(std::memory_order_relaxed); }
+
   const LocalBaTotals& totals() const { return totals_; }
 
  private:
@@ -129,6 +145,8 @@ class LocalBundleAdjuster {
   std::vector<float> level_sigma2_;
   bool deterministic_;
   std::string depth_mode_;
+  std::atomic<bool> abort_{false};
+  std::atomic<int> iterations_{0};
   LocalBaTotals totals_;
 };
 

@@ -128,6 +128,8 @@ Status Pipeline::init(const std::string& output_dir) {
         frontend::to_string(static_cast<frontend::TrackStep>(i)), 0, trace);
   }
   lat_keyframe_ = std::make_unique<platform::LatencyRecorder>("keyframe", 0, trace);
+  lat_local_ba_ = std::make_unique<platform::LatencyRecorder>(
+      "local_ba", ms_to_ns(config_.backend.max_time_ms), trace);
   Status s = output_.open(output_dir, config_.output);
   if (!s.is_ok()) return s;
   if (b.lock_memory) {
@@ -188,7 +190,8 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.wall_time_s = static_cast<double>(platform::monotonic_now_ns() - t_start_ns) * kNsToS;
   stats_.pose_source = "tracking";
   stats_.latency = {summarize(*lat_capture_), summarize(*lat_tracking_), summarize(*lat_output_),
-                    summarize(*lat_end_to_end_), summarize(*lat_keyframe_)};
+                    summarize(*lat_end_to_end_), summarize(*lat_keyframe_),
+                    summarize(*lat_local_ba_)};
   stats_.tracking_steps.clear();
   for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
   stats_.keyframes = map_->num_keyframes();
@@ -205,7 +208,11 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
 void Pipeline::create_keyframe(const map::KeyframeJob& job) {
   const std::int64_t t_kf = platform::monotonic_now_ns();
   const depth::KeyframeBuildReport rep = builder_->spin_once(job);
-  if (rep.ok) (void)ba_->spin_once(rep.keyframe, job.K);
+  if (rep.ok) {
+    const std::int64_t t_ba = platform::monotonic_now_ns();
+    const backend::LocalBaReport ba = ba_->spin_once(rep.keyframe, job.K);
+    if (ba.ran) lat_local_ba_->record(job.seq, t_ba, platform::monotonic_now_ns() - t_ba);
+  }
   lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
 }
 
@@ -408,6 +415,7 @@ Status Pipeline::run_threaded() {
             if (free_ring->try_pop(slot)) {
               tracker_->fill_keyframe_job(*frame, jobs_[slot]);
               (void)job_ring->try_push(slot);  // cannot be full: slots are fewer than its size
+              ba_->request_abort();  // a newer keyframe pre-empts the optimization in progress
               job_wake.notify();
             } else {
               tracker_->keyframe_not_queued();

@@ -158,6 +158,7 @@ class Pipeline {
              static_cast<std::size_t>(frontend::TrackStep::kCount)>
       lat_steps_;
   std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;
+  std::unique_ptr<platform::LatencyRecorder> lat_local_ba_;
   OutputStage output_;
   std::unique_ptr<platform::LatencyRecorder> lat_capture_;
   std::unique_ptr<platform::LatencyRecorder> lat_tracking_;

@@ -98,9 +98,11 @@ TEST(PipelineLockstep, CountsAndLatencies) {
   EXPECT_GE(s.keyframes, 1U);
   EXPECT_EQ(s.frames_lost, 0U);
   EXPECT_EQ(s.end_reason, "end_of_stream");
-  ASSERT_EQ(s.latency.size(), 5U);
+  ASSERT_EQ(s.latency.size(), 6U);
   EXPECT_EQ(s.latency[4].name, "keyframe");
   EXPECT_EQ(s.latency[4].count, s.keyframes - 1) << "one job per keyframe after the first";
+  EXPECT_EQ(s.latency[5].name, "local_ba");
+  EXPECT_EQ(s.latency[5].count, s.backend.runs) << "one sample per local BA run";
   for (std::size_t i = 0; i < 4; ++i) {
     const auto& l = s.latency[i];
     EXPECT_EQ(l.count, 25U) << l.name;
