@@ -21,9 +21,13 @@ constexpr double kMsPerS = 1000.0;
 class StopCallback final : public ceres::IterationCallback {
  public:
   using Clock = std::chrono::steady_clock;
-  StopCallback(const std::atomic<bool>& abort, std::atomic<int>& iterations,
+  StopCallback(const std::atomic<bool>& abort, std::atomic<int>& iterations, Clock::time_point t0,
                Clock::time_point deadline, bool use_deadline)
-      : abort_(abort), iterations_(iterations), deadline_(deadline), use_deadline_(use_deadline) {}
+      : abort_(abort),
+        iterations_(iterations),
+        last_poll_(t0),
+        deadline_(deadline),
+        use_deadline_(use_deadline) {}
 
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
     if (summary.iteration > 0) iterations_.fetch_add(1, std::memory_order_relaxed);
@@ -32,19 +36,30 @@ class StopCallback final : public ceres::IterationCallback {
   }
   /// Polls the abort request and the deadline; true (and sticky) once the run must stop.
   bool check() {
+    const Clock::time_point now = mark();
     if (!aborted && abort_.load(std::memory_order_relaxed)) aborted = true;
-    if (!timed_out && use_deadline_ && Clock::now() >= deadline_) timed_out = true;
+    if (!timed_out && use_deadline_ && now >= deadline_) timed_out = true;
     return stop();
+  }
+  /// Times the stretch since the previous poll (max_gap_ms).
+  Clock::time_point mark() {
+    const Clock::time_point now = Clock::now();
+    max_gap_ms =
+        std::max(max_gap_ms, std::chrono::duration<double, std::milli>(now - last_poll_).count());
+    last_poll_ = now;
+    return now;
   }
   /// True once the run must not start another solve.
   bool stop() const { return aborted || timed_out; }
 
   bool aborted = false;
   bool timed_out = false;
+  double max_gap_ms = 0.0;  // longest interval between two polls: the worst abort latency
 
  private:
   const std::atomic<bool>& abort_;
   std::atomic<int>& iterations_;
+  Clock::time_point last_poll_;
   Clock::time_point deadline_;
   bool use_deadline_;
 };
@@ -83,7 +98,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   const auto t0 = std::chrono::steady_clock::now();
   const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
       std::chrono::duration<double, std::milli>(opts_.max_time_ms));
-  StopCallback stop(abort_, iterations_, t0 + budget, !deterministic_);
+  StopCallback stop(abort_, iterations_, t0, t0 + budget, !deterministic_);
 
   // 1. Window: the new keyframe and its most covisible neighbours.
   std::vector<map::CovisibleKeyframe> covis(kMaxCovisibleRead);
@@ -269,7 +284,9 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
     }
     if (c.first > 0) map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
   }
+  (void)stop.mark();  // the write-back is part of the latency an abort can see
   rep.ran = true;
+  rep.max_poll_gap_ms = stop.max_gap_ms;
   rep.aborted = stop.aborted;
   rep.iterations = iterations_.load(std::memory_order_relaxed);
   rep.timed_out = stop.timed_out;

@@ -97,6 +97,8 @@ struct LocalBaReport {
   double final_cost = 0.0;
   double ms = 0.0;
   int iterations = 0;      ///< solver iterations, all solves
+  double max_poll_gap_ms = 0.0;  ///< longest stretch without polling abort / deadline: the
+                                 ///< worst-case latency of request_abort in this run, ms
   bool aborted = false;    ///< stopped by request_abort (the progress made is kept)
   bool timed_out = false;  ///< stopped by the wall-time budget (the progress made is kept)
 };

@@ -3,10 +3,11 @@
 // is tracked from the first one (the steps and their cost are the same as monocular
 // tracking). Keyframe creation and local BA run between frames, outside the timing, as they
 // run on another thread in mer_slam. Counters: per-frame p50/p99 and per-step means (ms),
-// heap allocations per tracked frame.
+// heap allocations per tracked frame. bm_local_ba: the local BA per keyframe (see there).
 #include <algorithm>
 #include <array>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include <benchmark/benchmark.h>
@@ -81,9 +82,11 @@ void bm_tracking(benchmark::State& state) {
     frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
                               "rgbd", false);
     (void)tracker.init();
-    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2());
+    const backend::LocalBaOptions ba_opts;
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2(),
+                                   ba_opts.depth_sigma_rel);
     (void)builder.init();
-    backend::LocalBundleAdjuster ba(backend::LocalBaOptions{}, *map, tracker.level_sigma2(), true);
+    backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), true, true);
     map::KeyframeJob job;
     job.reserve(tracker.max_keypoints(), seq.width, seq.height);
     for (const hal::Frame& f : seq.frames) {
@@ -119,8 +122,64 @@ void bm_tracking(benchmark::State& state) {
   state.counters["allocs_per_frame"] = static_cast<double>(allocs) / n;
 }
 
+// Local BA per keyframe as mer_slam runs it outside lockstep (default options: 50 ms budget
+// per run, polled between solver iterations). Arg 0: RGB-D (metric 3D-3D edges), 1: mono.
+// Counters: run time p50/p99 (ms), runs over the budget, solver iterations per run, and the
+// abort latency: the longest stretch of a run without a poll of the abort flag (p50/p99, ms).
+void bm_local_ba(benchmark::State& state) {
+  const Sequence& seq = sequence();
+  const std::string mode = state.range(0) == 0 ? "rgbd" : "mono";
+  std::vector<double> run_ms;
+  std::vector<double> gap_ms;
+  double iterations = 0.0;
+  int overruns = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    map::MapOptions mo;
+    mo.max_keyframes = 128;
+    mo.max_points = 50000;
+    auto map = std::make_unique<map::Map>(mo);
+    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
+                              mode, false);
+    (void)tracker.init();
+    const backend::LocalBaOptions ba_opts;
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, mode, *map, tracker.level_sigma2(),
+                                   ba_opts.depth_sigma_rel);
+    (void)builder.init();
+    backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), false,
+                                    builder.backend_name() == "rgbd");
+    map::KeyframeJob job;
+    job.reserve(tracker.max_keypoints(), seq.width, seq.height);
+    for (const hal::Frame& f : seq.frames) {
+      const frontend::TrackingResult r = tracker.spin_once(f);
+      if (!r.keyframe_job) continue;
+      tracker.fill_keyframe_job(f, job);
+      const depth::KeyframeBuildReport rep = builder.spin_once(job);
+      if (!rep.ok) continue;
+      state.ResumeTiming();
+      const backend::LocalBaReport b = ba.spin_once(rep.keyframe, job.K);
+      state.PauseTiming();
+      if (!b.ran) continue;
+      run_ms.push_back(b.ms);
+      gap_ms.push_back(b.max_poll_gap_ms);
+      iterations += b.iterations;
+      overruns += b.ms > ba_opts.max_time_ms ? 1 : 0;
+    }
+    state.ResumeTiming();
+  }
+  const double n = run_ms.empty() ? 1.0 : static_cast<double>(run_ms.size());
+  state.counters["runs"] = static_cast<double>(run_ms.size());
+  state.counters["run_p50_ms"] = percentile(run_ms, 0.5);
+  state.counters["run_p99_ms"] = percentile(run_ms, 0.99);
+  state.counters["overruns"] = overruns;
+  state.counters["iterations"] = iterations / n;
+  state.counters["abort_p50_ms"] = percentile(gap_ms, 0.5);
+  state.counters["abort_p99_ms"] = percentile(gap_ms, 0.99);
+}
+
 }  // namespace
 
 BENCHMARK(bm_tracking)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK(bm_local_ba)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(1);
 
 BENCHMARK_MAIN();
