@@ -8,6 +8,7 @@
 #include <cmath>
 #include <unordered_map>
 
+#include <Eigen/Geometry>
 #include <ceres/ceres.h>
 
 namespace mer::backend {
@@ -16,6 +17,7 @@ namespace {
 constexpr std::size_t kMaxCovisibleRead = 128;    // covisible neighbours read per keyframe
 constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
 constexpr double kMsPerS = 1000.0;
+constexpr double kMinDepth = 1e-6;  // camera z below which an observation is not evaluable
 
 /// Stops a solve between iterations on an abort request or past the run's deadline.
 class StopCallback final : public ceres::IterationCallback {
@@ -177,8 +179,17 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       const auto level = static_cast<std::size_t>(
           std::clamp<int>(kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
       const double inv_sigma = 1.0 / std::sqrt(static_cast<double>(level_sigma2_[level]));
-      auto* cost = new ReprojectionCost(kp.x, kp.y, inv_sigma, K);
       PoseBlock& b = it->second;
+      // A point behind (or on) a camera that observes it cannot be evaluated: leave that
+      // observation out (a solve whose first evaluation fails does nothing at all).
+      const Eigen::Vector3d p_c =
+          Eigen::Map<const Eigen::Quaterniond>(b.q.data()) * Eigen::Vector3d(X[0], X[1], X[2]) +
+          Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
+      if (!(p_c.z() > kMinDepth)) {
+        ++rep.skipped_observations;
+        continue;
+      }
+      auto* cost = new ReprojectionCost(kp.x, kp.y, inv_sigma, K);
       const ceres::ResidualBlockId rid =
           problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
       residuals.push_back({obs[o].first, p, rid, false});

@@ -90,6 +90,7 @@ struct LocalBaReport {
   int fixed_keyframes = 0;
   int points = 0;
   int observations = 0;
+  int skipped_observations = 0;  ///< left out: the point is behind the observing camera
   int depth_edges = 0;  ///< 3D-3D edges in the problem
   int outliers = 0;     ///< 3D-2D and 3D-3D edges removed as outliers
   int culled_points = 0;
