@@ -1,8 +1,12 @@
 #include "app/accuracy.h"
 
+#include <algorithm>
 #include <filesystem>
+#include <string>
 
+#include "app/summary.h"
 #include "hal/ground_truth.h"
+#include "pipeline/output_stage.h"
 #include "tools/eval/trajectory_eval.h"
 
 namespace mer::app {
@@ -12,11 +16,11 @@ constexpr std::size_t kMinPairs = 3;          // Umeyama needs three points
 }  // namespace
 
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
-                            const pipeline::PipelineStats& stats) {
+                            const pipeline::PipelineStats& stats, const std::string& trajectory) {
   AccuracyReport a;
   const std::filesystem::path d(dir);
   const std::string gt_path = (d / "groundtruth.txt").string();
-  const std::string est_path = (d / "trajectory.txt").string();
+  const std::string est_path = (d / trajectory).string();
   std::error_code ec;
   if (dir.empty() || std::filesystem::file_size(gt_path, ec) == 0 || ec) {
     a.note = "no ground truth from this source";
@@ -70,6 +74,27 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
         100.0 * static_cast<double>(tracked) / static_cast<double>(since_init);
   }
   return a;
+}
+
+Status write_final_ba_trajectory(const std::string& dir,
+                                 const std::vector<pipeline::KeyframeCorrection>& corrections) {
+  const std::filesystem::path d(dir);
+  if (corrections.empty()) return invalid_argument("final BA: the map has no keyframe");
+  auto est = hal::load_tum_trajectory((d / "trajectory.txt").string());
+  if (!est.is_ok()) return est.status();
+  std::string text;
+  char line[256];
+  for (const StampedPose& p : est.value().poses) {
+    // Latest keyframe at or before the frame (keyframes are in time order).
+    auto it = std::upper_bound(
+        corrections.begin(), corrections.end(), p.t_ns,
+        [](std::int64_t t, const pipeline::KeyframeCorrection& c) { return t < c.t_ns; });
+    const pipeline::KeyframeCorrection& c = it == corrections.begin() ? *it : *(it - 1);
+    const SE3d T = c.T_w_c_after * c.T_w_c_before.inverse() * p.T_w_c;
+    const int n = pipeline::format_tum_line(line, sizeof line, p.t_ns, T);
+    if (n > 0) text.append(line, static_cast<std::size_t>(n));
+  }
+  return write_file_atomic((d / "trajectory_final_ba.txt").string(), text);
 }
 
 }  // namespace mer::app

@@ -29,8 +29,16 @@ struct AccuracyReport {
   double tracked_after_init_pct = 0.0;  ///< tracked frames / frames from initialization on
 };
 
-/// Scores `dir`/trajectory.txt against `dir`/groundtruth.txt.
+/// Scores `dir`/`trajectory` (trajectory.txt by default) against `dir`/groundtruth.txt.
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
-                            const pipeline::PipelineStats& stats);
+                            const pipeline::PipelineStats& stats,
+                            const std::string& trajectory = "trajectory.txt");
+
+/// Writes `dir`/trajectory_final_ba.txt: every pose of `dir`/trajectory.txt moved with the
+/// correction the full-graph optimization applied to its keyframe (the latest keyframe at or
+/// before the frame; the first keyframe for earlier frames): T' = T_kf_after T_kf_before^-1 T.
+/// The file is written atomically; trajectory.txt is not touched.
+Status write_final_ba_trajectory(const std::string& dir,
+                                 const std::vector<pipeline::KeyframeCorrection>& corrections);
 
 }  // namespace mer::app

@@ -45,6 +45,8 @@ std::string usage() {
   --intrinsics fx,fy,cx,cy[,k1,k2,p1,p2]
                      calibration override (pixels; radtan distortion)
   --focal auto|fixed estimate the focal length (auto) or trust the calibration
+  --final-ba         after the stream, optimize the whole graph and write
+                     trajectory_final_ba.txt (scored in summary.json accuracy_final_ba)
   --print-config     print the effective configuration as YAML and exit
   --quiet            no human-readable summary on stdout
   --help, --version
@@ -86,6 +88,8 @@ Result<CliArgs> parse_cli(int argc, const char* const* argv) {
       s = value(a.output_dir);
     } else if (flag == "--mode") {
       if (s = value(v); s.is_ok()) a.mode = v;
+    } else if (flag == "--final-ba") {
+      a.final_ba = true;
     } else if (flag == "--focal") {
       if (s = value(v); s.is_ok()) a.focal = v;
     } else if (flag == "--max-frames") {
@@ -126,6 +130,7 @@ Status build_config(const CliArgs& args, SlamConfig& config) {
   if (args.lockstep) config.pipeline.lockstep = true;
   if (args.max_frames) config.pipeline.max_frames = *args.max_frames;
   if (args.focal) config.pipeline.focal = *args.focal;
+  if (args.final_ba) config.pipeline.final_ba = true;
   if (args.intrinsics) {
     const auto& k = *args.intrinsics;
     auto& c = config.camera.calibration;

@@ -4,7 +4,7 @@
 ///
 ///   mer_slam [--config FILE] [--board FILE] [--input URI] [--output DIR] [--mode mono|rgbd]
 ///            [--lockstep] [--max-frames N] [--intrinsics fx,fy,cx,cy[,k1,k2,p1,p2]]
-///            [--focal auto|fixed] [--print-config] [--quiet] [--help] [--version]
+///            [--focal auto|fixed] [--final-ba] [--print-config] [--quiet] [--help] [--version]
 
 #include <optional>
 #include <string>
@@ -26,6 +26,7 @@ struct CliArgs {
   std::string output_dir;                         ///< --output (empty: no files)
   std::optional<std::string> mode;                ///< --mode
   bool lockstep = false;                          ///< --lockstep
+  bool final_ba = false;                          ///< --final-ba
   std::optional<int> max_frames;                  ///< --max-frames
   std::optional<std::vector<double>> intrinsics;  ///< --intrinsics (4 or 8 numbers)
   std::optional<std::string> focal;               ///< --focal

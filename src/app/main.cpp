@@ -117,6 +117,18 @@ int main(int argc, char** argv) {
     }
     drain.stop();  // print pending warnings before the summary
     info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
+    if (pipe.stats().final_ba.ran && !args.output_dir.empty()) {
+      if (Status w =
+              app::write_final_ba_trajectory(args.output_dir, pipe.stats().final_ba.corrections);
+          w.is_ok()) {
+        info.final_ba = true;
+        info.accuracy_final_ba = app::evaluate_run(args.output_dir, config.pipeline.mode,
+                                                   pipe.stats(), "trajectory_final_ba.txt");
+      } else {
+        std::cerr << "mer_slam: error: final BA trajectory: " << w.message() << "\n";
+        if (code == 0) code = 4;
+      }
+    }
     if (!args.output_dir.empty()) {
       const std::string path = (std::filesystem::path(args.output_dir) / "summary.json").string();
       if (Status w = app::write_file_atomic(path, app::summary_json(pipe.stats(), info));

@@ -91,17 +91,27 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"fx\": " << num(k.fx) << ", \"fy\": " << num(k.fy) << ", \"cx\": " << num(k.cx)
     << ", \"cy\": " << num(k.cy) << "},\n";
   j << "  \"pose_source\": " << json_string(st.pose_source) << ",\n";
-  const AccuracyReport& a = info.accuracy;
-  if (a.available) {
-    j << "  \"accuracy\": {\"align\": " << json_string(a.alignment) << ", \"pairs\": " << a.pairs
-      << ", \"gt_frames\": " << a.gt_frames << ", \"scale\": " << num(a.scale)
-      << ", \"ate_rmse_m\": " << num(a.ate_rmse_m) << ", \"ate_mean_m\": " << num(a.ate_mean_m)
-      << ", \"ate_median_m\": " << num(a.ate_median_m) << ", \"ate_max_m\": " << num(a.ate_max_m)
-      << ", \"path_length_m\": " << num(a.path_length_m)
-      << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
-      << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
-  } else {
-    j << "  \"accuracy\": {\"note\": " << json_string(a.note) << "},\n";
+  auto accuracy_json = [&](const char* key, const AccuracyReport& a) {
+    if (a.available) {
+      j << "  \"" << key << "\": {\"align\": " << json_string(a.alignment)
+        << ", \"pairs\": " << a.pairs << ", \"gt_frames\": " << a.gt_frames
+        << ", \"scale\": " << num(a.scale) << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
+        << ", \"ate_mean_m\": " << num(a.ate_mean_m)
+        << ", \"ate_median_m\": " << num(a.ate_median_m) << ", \"ate_max_m\": " << num(a.ate_max_m)
+        << ", \"path_length_m\": " << num(a.path_length_m)
+        << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
+        << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
+    } else {
+      j << "  \"" << key << "\": {\"note\": " << json_string(a.note) << "},\n";
+    }
+  };
+  accuracy_json("accuracy", info.accuracy);
+  if (info.final_ba) {
+    const pipeline::FinalBaStats& f = st.final_ba;
+    j << "  \"final_ba\": {\"keyframes\": " << f.keyframes << ", \"points\": " << f.points
+      << ", \"observations\": " << f.observations << ", \"iterations\": " << f.iterations
+      << ", \"ms\": " << num(f.ms) << "},\n";
+    accuracy_json("accuracy_final_ba", info.accuracy_final_ba);
   }
   const frontend::TrackerCounters& tc = st.tracker;
   j << "  \"tracking\": {\"initialized\": " << (tc.initialized ? "true" : "false")
@@ -200,6 +210,11 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
        << a.tracked_after_init_pct << " % after init\n";
   } else {
     os << "  ATE: " << info.accuracy.note << "\n";
+  }
+  if (info.final_ba && info.accuracy_final_ba.available) {
+    const AccuracyReport& a = info.accuracy_final_ba;
+    os << "  ATE after final BA: rmse " << std::setprecision(4) << a.ate_rmse_m
+       << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of path\n";
   }
   os << "  latency ms      p50      p90      p99      max   budget  overruns\n";
   for (const auto& l : st.latency) {

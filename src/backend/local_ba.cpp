@@ -1,7 +1,5 @@
 #include "backend/local_ba.h"
 
-#include "backend/ba_residuals.h"
-
 #include <algorithm>
 #include <array>
 #include <chrono>
@@ -11,12 +9,15 @@
 #include <Eigen/Geometry>
 #include <ceres/ceres.h>
 
+#include "backend/ba_residuals.h"
+
 namespace mer::backend {
 namespace {
 
 constexpr std::size_t kMaxCovisibleRead = 128;    // covisible neighbours read per keyframe
 constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
 constexpr double kMsPerS = 1000.0;
+constexpr std::size_t kMaxDenseSchurKeyframes = 64;  // larger windows: sparse Schur
 constexpr double kMinDepth = 1e-6;  // camera z below which an observation is not evaluable
 
 /// Stops a solve between iterations on an abort request or past the run's deadline.
@@ -93,22 +94,46 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
                                              : opts.depth_edges) {}
 
 LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
-  LocalBaReport rep;
-  if (!opts_.enabled) return rep;
-  abort_.store(false, std::memory_order_relaxed);
-  iterations_.store(0, std::memory_order_relaxed);
-  const auto t0 = std::chrono::steady_clock::now();
-  const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-      std::chrono::duration<double, std::milli>(opts_.max_time_ms));
-  StopCallback stop(abort_, iterations_, t0, t0 + budget, !deterministic_);
-
-  // 1. Window: the new keyframe and its most covisible neighbours.
+  if (!opts_.enabled) return {};
+  // Window: the new keyframe and its most covisible neighbours.
   std::vector<map::CovisibleKeyframe> covis(kMaxCovisibleRead);
   const std::size_t nc = map_.covisible_keyframes(kf, covis);
   std::vector<map::KeyframeId> window{kf};
   for (std::size_t i = 0; i < nc && static_cast<int>(window.size()) < opts_.window_keyframes; ++i) {
     window.push_back(covis[i].id);
   }
+  const LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_);
+  if (!rep.ran) return rep;
+  ++totals_.runs;
+  totals_.aborted += rep.aborted ? 1U : 0U;
+  totals_.timed_out += rep.timed_out ? 1U : 0U;
+  totals_.overruns += rep.ms > opts_.max_time_ms ? 1U : 0U;
+  totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
+  totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
+  totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);
+  totals_.total_ms += rep.ms;
+  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
+  return rep;
+}
+
+LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations) {
+  std::vector<map::KeyframeId> window;
+  const map::KeyframeId n = map_.num_keyframes();
+  for (map::KeyframeId id = 0; id < n; ++id) window.push_back(id);
+  return optimize(window, K, max_iterations, false);
+}
+
+LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& window,
+                                            const geometry::Pinhole& K, int max_iterations,
+                                            bool budgeted) {
+  LocalBaReport rep;
+  abort_.store(false, std::memory_order_relaxed);
+  iterations_.store(0, std::memory_order_relaxed);
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double, std::milli>(opts_.max_time_ms));
+  StopCallback stop(abort_, iterations_, t0, t0 + budget, budgeted);
+
   std::unordered_map<map::KeyframeId, PoseBlock> poses;
   auto load_pose = [&](map::KeyframeId id, bool fixed) {
     SE3d T_w_c;
@@ -199,8 +224,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
       if (d <= 0.0F || conf <= 0.0F) continue;
       const double sigma = opts_.depth_sigma_rel * d / std::sqrt(static_cast<double>(conf));
       auto* dcost = new DepthCost(d, 1.0 / sigma);
-      const ceres::ResidualBlockId did = problem.AddResidualBlock(
-          dcost, &huber, b.q.data(), b.t.data(), X.data(), &b.depth_scale);
+      const ceres::ResidualBlockId did =
+          problem.AddResidualBlock(dcost, &huber, b.q.data(), b.t.data(), X.data(), &b.depth_scale);
       residuals.push_back({obs[o].first, p, did, true});
       ++rep.depth_edges;
     }
@@ -224,8 +249,11 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   if (residuals.empty()) return rep;
 
   ceres::Solver::Options sopts;
-  sopts.linear_solver_type = ceres::DENSE_SCHUR;
-  sopts.max_num_iterations = opts_.max_iterations;
+  // A local window's reduced camera system is small and dense; a full graph's is large and
+  // sparse (each keyframe shares points with a few others only).
+  sopts.linear_solver_type =
+      window.size() <= kMaxDenseSchurKeyframes ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  sopts.max_num_iterations = max_iterations;
   sopts.num_threads = 1;
   sopts.logging_type = ceres::SILENT;
   sopts.callbacks.push_back(&stop);
@@ -234,7 +262,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     return std::max(0.0, opts_.max_time_ms - used_ms) / kMsPerS;
   };
-  if (!deterministic_) sopts.max_solver_time_in_seconds = remaining_s();
+  if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
   ceres::Solver::Summary summary;
   if (!stop.check()) ceres::Solve(sopts, &problem, &summary);
   rep.initial_cost = summary.initial_cost;
@@ -246,8 +274,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
     if (stop.stop()) break;
     double cost = 0.0;
     const double chi2 = o.depth ? opts_.depth_outlier_chi2 : opts_.outlier_chi2;
-    if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) ||
-        2.0 * cost > chi2) {
+    if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) || 2.0 * cost > chi2) {
       problem.RemoveResidualBlock(o.id);
       if (!o.depth) ++point_obs[o.p].second;
       ++rep.outliers;
@@ -256,7 +283,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
     }
   }
   if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check()) {
-    if (!deterministic_) sopts.max_solver_time_in_seconds = remaining_s();
+    if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
     ceres::Solve(sopts, &problem, &summary);
   }
   rep.final_cost = summary.final_cost;
@@ -302,15 +329,6 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   rep.iterations = iterations_.load(std::memory_order_relaxed);
   rep.timed_out = stop.timed_out;
   rep.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  ++totals_.runs;
-  totals_.aborted += rep.aborted ? 1U : 0U;
-  totals_.timed_out += rep.timed_out ? 1U : 0U;
-  totals_.overruns += rep.ms > opts_.max_time_ms ? 1U : 0U;
-  totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
-  totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
-  totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);
-  totals_.total_ms += rep.ms;
-  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
   return rep;
 }
 

@@ -9,10 +9,11 @@
 /// and the map-point, along the viewing ray (the lateral part is the 3D-2D edge), weighted by
 /// the depth confidence; both with a Huber kernel. In `scaled` mode each keyframe's local
 /// depth carries its own scale, optimized with the poses (the Sim(3)-style handling of
-/// monocular depth whose scale is only known up to the alignment). A first solve with all observations is followed by a second one without
-/// the observations it found to be outliers; points with too few consistent observations
-/// are culled. Bounded by iterations and wall time. The optimized poses and positions are
-/// written back to the map (which the tracker reads at its next frame).
+/// monocular depth whose scale is only known up to the alignment). A first solve with all
+/// observations is followed by a second one without the observations it found to be outliers;
+/// points with too few consistent observations are culled. Bounded by iterations and wall time. The
+/// optimized poses and positions are written back to the map (which the tracker reads at its next
+/// frame).
 ///
 /// Runs on the keyframe-creation thread, after the keyframe is inserted; it is the map's
 /// writer while it runs.
@@ -31,22 +32,22 @@
 namespace mer::backend {
 
 /// How keyframe depth enters the optimization.
-inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", "metric",
-                                                                 "scaled"};
+inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", "metric", "scaled"};
 
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
-  bool enabled = true;              ///< run local bundle adjustment after each keyframe
-  int window_keyframes = 8;         ///< keyframes optimized (the new one + most covisible)
-  int max_fixed_keyframes = 16;     ///< keyframes held fixed (most shared points first)
-  int max_iterations = 10;          ///< Levenberg-Marquardt iterations per solve
-  double max_time_ms = 50.0;        ///< wall-time budget of one run (all solves), ms
-  double huber_sigmas = 2.45;       ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
-  double outlier_chi2 = 5.991;      ///< squared error / sigma^2 above this is an outlier
-  int min_inlier_observations = 2;  ///< points with fewer consistent observations are culled
-  std::string depth_edges = "auto";  ///< 3D-3D edges: auto (metric in rgbd mode, else off),
-                                     ///< off, metric (depth as is), scaled (per-keyframe scale)
-  double depth_sigma_rel = 0.01;     ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
+  bool enabled = true;                ///< run local bundle adjustment after each keyframe
+  int window_keyframes = 8;           ///< keyframes optimized (the new one + most covisible)
+  int max_fixed_keyframes = 16;       ///< keyframes held fixed (most shared points first)
+  int max_iterations = 10;            ///< Levenberg-Marquardt iterations per solve
+  double max_time_ms = 50.0;          ///< wall-time budget of one run (all solves), ms
+  double huber_sigmas = 2.45;         ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
+  double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
+  int min_inlier_observations = 2;    ///< points with fewer consistent observations are culled
+  int full_max_iterations = 100;      ///< iterations of a full-graph optimization (--final-ba)
+  std::string depth_edges = "auto";   ///< 3D-3D edges: auto (metric in rgbd mode, else off),
+                                      ///< off, metric (depth as is), scaled (per-keyframe scale)
+  double depth_sigma_rel = 0.01;      ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
   double depth_outlier_chi2 = 3.841;  ///< squared depth error / sigma^2 above this: outlier
 
   template <class V>
@@ -69,6 +70,9 @@ struct LocalBaOptions {
             options::Range<double>{0.1, 1000.0});
     v.field("min_inlier_observations", min_inlier_observations,
             "points with fewer consistent observations are culled", options::Range<int>{1, 100});
+    v.field("full_max_iterations", full_max_iterations,
+            "Levenberg-Marquardt iterations of a full-graph optimization (pipeline.final_ba)",
+            options::Range<int>{1, 100000});
     v.field("depth_edges", depth_edges,
             "3D-3D edges from keyframe depth: auto (metric in rgbd mode, off in mono), off, "
             "metric (depth taken as is), scaled (each keyframe's depth scale optimized)",
@@ -91,17 +95,17 @@ struct LocalBaReport {
   int points = 0;
   int observations = 0;
   int skipped_observations = 0;  ///< left out: the point is behind the observing camera
-  int depth_edges = 0;  ///< 3D-3D edges in the problem
-  int outliers = 0;     ///< 3D-2D and 3D-3D edges removed as outliers
+  int depth_edges = 0;           ///< 3D-3D edges in the problem
+  int outliers = 0;              ///< 3D-2D and 3D-3D edges removed as outliers
   int culled_points = 0;
   double initial_cost = 0.0;
   double final_cost = 0.0;
   double ms = 0.0;
-  int iterations = 0;      ///< solver iterations, all solves
+  int iterations = 0;            ///< solver iterations, all solves
   double max_poll_gap_ms = 0.0;  ///< longest stretch without polling abort / deadline: the
                                  ///< worst-case latency of request_abort in this run, ms
-  bool aborted = false;    ///< stopped by request_abort (the progress made is kept)
-  bool timed_out = false;  ///< stopped by the wall-time budget (the progress made is kept)
+  bool aborted = false;          ///< stopped by request_abort (the progress made is kept)
+  bool timed_out = false;        ///< stopped by the wall-time budget (the progress made is kept)
 };
 
 /// Totals over a run (summary.json `backend`).
@@ -132,6 +136,11 @@ class LocalBundleAdjuster {
   /// Optimizes the window around `kf` with intrinsics `K`.
   LocalBaReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
 
+  /// Full-graph optimization: every keyframe and map-point, the first keyframe held fixed
+  /// (the gauge), no wall-time budget; `request_abort` still stops it. Totals are not
+  /// touched. Used offline (`mer_slam --final-ba`) and by loop closure. Writer thread only.
+  LocalBaReport optimize_full(const geometry::Pinhole& K, int max_iterations);
+
   /// Pre-empts the run in progress (any thread; lock-free): it stops after the current
   /// solver iteration, keeps the progress made and returns. A run clears the request when it
   /// starts, so a request between runs is dropped: it only ever shortens the current run.
@@ -143,6 +152,9 @@ class LocalBundleAdjuster {
   const LocalBaTotals& totals() const { return totals_; }
 
  private:
+  LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
+                         int max_iterations, bool budgeted);
+
   LocalBaOptions opts_;
   map::Map& map_;
   std::vector<float> level_sigma2_;

@@ -537,7 +537,8 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   job.has_sensor_depth = !frame.depth.empty();
   for (int i = 0; i < n && job.has_sensor_depth; ++i) {
     const auto ui = static_cast<std::size_t>(i);
-    job.sensor_depth[ui] = sample_depth(frame.depth, kps_[ui].x, kps_[ui].y, opts_.rgbd_max_depth_step);
+    job.sensor_depth[ui] =
+        sample_depth(frame.depth, kps_[ui].x, kps_[ui].y, opts_.rgbd_max_depth_step);
   }
   if (job.gray.size() == frame.gray.size()) frame.gray.copyTo(job.gray);
 }

@@ -181,6 +181,7 @@ Status Pipeline::run() {
   camera_.stop();
   stats_.source = camera_.counters();
   Status c = output_.close();
+  if (config_.pipeline.final_ba && stats_.frames_processed > 0) run_final_ba();
   finish_stats(t0);
   if (!s.is_ok()) return s;
   return c;
@@ -189,9 +190,9 @@ Status Pipeline::run() {
 void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.wall_time_s = static_cast<double>(platform::monotonic_now_ns() - t_start_ns) * kNsToS;
   stats_.pose_source = "tracking";
-  stats_.latency = {summarize(*lat_capture_), summarize(*lat_tracking_), summarize(*lat_output_),
-                    summarize(*lat_end_to_end_), summarize(*lat_keyframe_),
-                    summarize(*lat_local_ba_)};
+  stats_.latency = {summarize(*lat_capture_),  summarize(*lat_tracking_),
+                    summarize(*lat_output_),   summarize(*lat_end_to_end_),
+                    summarize(*lat_keyframe_), summarize(*lat_local_ba_)};
   stats_.tracking_steps.clear();
   for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
   stats_.keyframes = map_->num_keyframes();
@@ -203,6 +204,31 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.depth_backend = std::string(builder_->backend_name());
   stats_.backend_depth_edges = ba_->depth_edge_mode();
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
+}
+
+void Pipeline::run_final_ba() {
+  // Every stage has stopped: this thread is the map's only writer now.
+  FinalBaStats& f = stats_.final_ba;
+  const map::KeyframeId n = map_->num_keyframes();
+  f.corrections.resize(n);
+  for (map::KeyframeId id = 0; id < n; ++id) {
+    f.corrections[id].t_ns = map_->keyframe_t_ns(id);
+    (void)map_->keyframe_pose(id, f.corrections[id].T_w_c_before);
+  }
+  const backend::LocalBaReport rep =
+      ba_->optimize_full(tracker_->intrinsics(), config_.backend.full_max_iterations);
+  for (map::KeyframeId id = 0; id < n; ++id) {
+    f.corrections[id].T_w_c_after = f.corrections[id].T_w_c_before;
+    (void)map_->keyframe_pose(id, f.corrections[id].T_w_c_after);
+  }
+  f.ran = rep.ran;
+  f.keyframes = rep.keyframes;
+  f.points = rep.points;
+  f.observations = rep.observations;
+  f.iterations = rep.iterations;
+  f.ms = rep.ms;
+  MER_LOG_INFO("final BA: %d keyframes, %d points, %d observations, %d iterations, %.0f ms",
+               rep.keyframes, rep.points, rep.observations, rep.iterations, rep.ms);
 }
 
 void Pipeline::create_keyframe(const map::KeyframeJob& job) {

@@ -86,6 +86,24 @@ struct ThreadPlacement {
   std::string note;      ///< why not, when not
 };
 
+/// A keyframe pose before and after the full-graph optimization (pipeline.final_ba).
+struct KeyframeCorrection {
+  std::int64_t t_ns = 0;
+  SE3d T_w_c_before = SE3d::Identity();
+  SE3d T_w_c_after = SE3d::Identity();
+};
+
+/// What the full-graph optimization after the stream did.
+struct FinalBaStats {
+  bool ran = false;
+  int keyframes = 0;
+  int points = 0;
+  int observations = 0;
+  int iterations = 0;
+  double ms = 0.0;
+  std::vector<KeyframeCorrection> corrections;  ///< one per keyframe, in id order
+};
+
 /// Counters and summaries of one run.
 struct PipelineStats {
   std::uint64_t frames_in = 0;               ///< frames delivered by the source
@@ -114,6 +132,7 @@ struct PipelineStats {
   std::vector<StageLatency> latency;
   std::vector<ThreadAllocs> allocs;
   std::vector<ThreadPlacement> threads;
+  FinalBaStats final_ba;  ///< pipeline.final_ba
 };
 
 /// Owns the stages and runs them.
@@ -137,6 +156,7 @@ class Pipeline {
   Status run_lockstep();
   Status run_threaded();
   void finish_stats(std::int64_t t_start_ns);
+  void run_final_ba();
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;
   bool source_timed_out(std::int64_t last_frame_ns) const;

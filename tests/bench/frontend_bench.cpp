@@ -139,8 +139,8 @@ void bm_local_ba(benchmark::State& state) {
     mo.max_keyframes = 128;
     mo.max_points = 50000;
     auto map = std::make_unique<map::Map>(mo);
-    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
-                              mode, false);
+    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height, mode,
+                              false);
     (void)tracker.init();
     const backend::LocalBaOptions ba_opts;
     depth::KeyframeBuilder builder(depth::DepthOptions{}, mode, *map, tracker.level_sigma2(),

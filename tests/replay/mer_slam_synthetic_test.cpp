@@ -62,6 +62,32 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
   EXPECT_EQ(static_cast<std::string>(s["run_mode"]), "lockstep");
 }
 
+// --final-ba: the whole graph is optimized after the stream; trajectory.txt stays what
+// tracking wrote (byte-identical to a run without the flag) and trajectory_final_ba.txt has
+// every frame, scored in summary.json.
+TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
+  const auto plain = fresh_dir("mer_e2e_final_ba_plain");
+  const auto ba = fresh_dir("mer_e2e_final_ba");
+  for (const auto& [d, flag] : {std::pair{plain, ""}, std::pair{ba, " --final-ba"}}) {
+    const auto r = run_command(quote(kExe) + " --lockstep --mode rgbd --max-frames 120 --quiet" +
+                               flag + " --output " + quote(d.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  EXPECT_EQ(read_text((plain / "trajectory.txt").string()),
+            read_text((ba / "trajectory.txt").string()));
+  EXPECT_FALSE(std::filesystem::exists(plain / "trajectory_final_ba.txt"));
+  EXPECT_EQ(count_lines((ba / "trajectory_final_ba.txt").string()), 120);
+  cv::FileStorage s = open_summary(ba);
+  ASSERT_TRUE(s.isOpened());
+  EXPECT_GE(static_cast<int>(s["final_ba"]["keyframes"]), 2);
+  EXPECT_GT(static_cast<int>(s["final_ba"]["observations"]), 0);
+  const double ate = static_cast<double>(s["accuracy_final_ba"]["ate_rmse_m"]);
+  EXPECT_GT(ate, 0.0);
+  EXPECT_LT(ate, 0.02) << "RGB-D synthetic after final BA (the run itself is ~5 mm)";
+  cv::FileStorage sp = open_summary(plain);
+  EXPECT_TRUE(sp["final_ba"].empty());
+}
+
 TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
   const auto d = fresh_dir("mer_e2e_threaded");
   const auto r =

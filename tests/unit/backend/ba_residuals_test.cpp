@@ -25,9 +25,8 @@ struct State {
 State random_state(std::mt19937& rng) {
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   State st;
-  const Eigen::Quaterniond q =
-      Eigen::Quaterniond(Eigen::AngleAxisd(0.7 * u(rng),
-                                           Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized()));
+  const Eigen::Quaterniond q = Eigen::Quaterniond(
+      Eigen::AngleAxisd(0.7 * u(rng), Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized()));
   st.q = {q.x(), q.y(), q.z(), q.w()};
   st.t = {0.3 * u(rng), 0.3 * u(rng), 0.5 * u(rng)};
   // A point in front of the camera: choose it in the camera, map it to the world.
@@ -74,9 +73,9 @@ void check(const ceres::CostFunction& cost, const State& st) {
   for (int b = 0; b < nb; ++b) {
     const int ambient = cost.parameter_block_sizes()[static_cast<std::size_t>(b)];
     const int tangent = b == 0 ? 3 : ambient;
-    Eigen::MatrixXd Ja = Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic,
-                                                  Eigen::RowMajor>>(Jp[static_cast<std::size_t>(b)],
-                                                                    N, ambient);
+    Eigen::MatrixXd Ja =
+        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(
+            Jp[static_cast<std::size_t>(b)], N, ambient);
     Eigen::MatrixXd Jt = Ja;
     if (b == 0) {
       Eigen::Matrix<double, 4, 3, Eigen::RowMajor> P;
@@ -123,14 +122,14 @@ TEST(BaResiduals, ManifoldPlusMinusRoundTrip) {
   ASSERT_TRUE(m.Plus(x.data(), delta.data(), y.data()));
   std::array<double, 3> back{};
   ASSERT_TRUE(m.Minus(y.data(), x.data(), back.data()));
-  for (int i = 0; i < 3; ++i) EXPECT_NEAR(back[static_cast<std::size_t>(i)], delta[static_cast<std::size_t>(i)], 1e-12);
+  for (int i = 0; i < 3; ++i)
+    EXPECT_NEAR(back[static_cast<std::size_t>(i)], delta[static_cast<std::size_t>(i)], 1e-12);
   // Plus is a left perturbation: R(y) = Exp(delta) R(x).
   const Eigen::Matrix3d Ry = Eigen::Map<const Eigen::Quaterniond>(y.data()).toRotationMatrix();
   const Eigen::Matrix3d Rx = q.toRotationMatrix();
-  const Eigen::Matrix3d E =
-      Eigen::AngleAxisd(Eigen::Vector3d(0.01, -0.02, 0.03).norm(),
-                        Eigen::Vector3d(0.01, -0.02, 0.03).normalized())
-          .toRotationMatrix();
+  const Eigen::Matrix3d E = Eigen::AngleAxisd(Eigen::Vector3d(0.01, -0.02, 0.03).norm(),
+                                              Eigen::Vector3d(0.01, -0.02, 0.03).normalized())
+                                .toRotationMatrix();
   EXPECT_LT((Ry - E * Rx).norm(), 1e-12);
 }
 

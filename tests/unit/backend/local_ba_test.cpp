@@ -21,7 +21,7 @@ namespace {
 
 constexpr int kKeyframes = 6;
 constexpr int kPoints = 300;
-constexpr double kPixelNoise = 0.5;  // px, keypoint noise
+constexpr double kPixelNoise = 0.5;    // px, keypoint noise
 constexpr double kDepthNoise = 0.003;  // relative sensor depth noise
 const geometry::Pinhole kK{450.0, 450.0, 320.0, 240.0};
 constexpr int kWidth = 640;
@@ -38,8 +38,8 @@ struct Scene {
 // Keyframes on an arc looking at points 2-4 m ahead; the map holds noisy keypoints, depth
 // scaled by depth_scale[k] (1: metric), poses and points perturbed (keyframe 0 exact).
 Scene build(map::Map& map, const std::vector<double>& depth_scale, double pose_noise_m,
-            double pose_noise_rad, double point_noise_m, int depth_outlier_kp = -1, int nk = kKeyframes,
-            int np = kPoints) {
+            double pose_noise_rad, double point_noise_m, int depth_outlier_kp = -1,
+            int nk = kKeyframes, int np = kPoints) {
   Scene s;
   std::mt19937 rng(7);
   std::normal_distribution<double> n01(0.0, 1.0);
@@ -81,9 +81,10 @@ Scene build(map::Map& map, const std::vector<double>& depth_scale, double pose_n
     in.seq = static_cast<std::uint64_t>(k);
     in.T_w_c = s.T_w_c[static_cast<std::size_t>(k)];
     if (k > 0) {
-      in.T_w_c.linear() = in.T_w_c.linear() *
-                          geometry::so3_exp(pose_noise_rad * Eigen::Vector3d(n01(rng), n01(rng),
-                                                                             n01(rng)).normalized());
+      in.T_w_c.linear() =
+          in.T_w_c.linear() *
+          geometry::so3_exp(pose_noise_rad *
+                            Eigen::Vector3d(n01(rng), n01(rng), n01(rng)).normalized());
       in.T_w_c.translation() +=
           pose_noise_m * Eigen::Vector3d(n01(rng), n01(rng), n01(rng)).normalized();
     }
@@ -98,9 +99,8 @@ Scene build(map::Map& map, const std::vector<double>& depth_scale, double pose_n
       const int i = s.kp_point[static_cast<std::size_t>(k)][j];
       auto& pid = s.ids[static_cast<std::size_t>(i)];
       if (pid == map::kNoId) {
-        const Eigen::Vector3d noisy =
-            s.p_w[static_cast<std::size_t>(i)] +
-            point_noise_m * Eigen::Vector3d(n01(rng), n01(rng), n01(rng));
+        const Eigen::Vector3d noisy = s.p_w[static_cast<std::size_t>(i)] +
+                                      point_noise_m * Eigen::Vector3d(n01(rng), n01(rng), n01(rng));
         const auto p = map.add_point(noisy, id.value(), static_cast<std::uint32_t>(j));
         EXPECT_TRUE(p.is_ok());
         pid = p.value();
@@ -138,8 +138,8 @@ Errors errors(const map::Map& map, const Scene& s) {
     EXPECT_TRUE(map.keyframe_pose(s.kf[static_cast<std::size_t>(k)], T));
     const SE3d& G = s.T_w_c[static_cast<std::size_t>(k)];
     e.max_position_m = std::max(e.max_position_m, (T.translation() - G.translation()).norm());
-    e.max_rotation_rad = std::max(
-        e.max_rotation_rad, geometry::so3_log(G.linear().transpose() * T.linear()).norm());
+    e.max_rotation_rad =
+        std::max(e.max_rotation_rad, geometry::so3_log(G.linear().transpose() * T.linear()).norm());
   }
   double sum = 0.0;
   int n = 0;
@@ -264,8 +264,7 @@ TEST(LocalBa, AbortRequestStopsTheRunAfterTheIterationInProgress) {
   });
   // Wait for two completed iterations (bounded: a hung solver fails the test, not CI).
   const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-  while (ba.iterations_in_run() < 2 && !done.load() &&
-         std::chrono::steady_clock::now() < give_up) {
+  while (ba.iterations_in_run() < 2 && !done.load() && std::chrono::steady_clock::now() < give_up) {
     std::this_thread::sleep_for(std::chrono::microseconds(100));
   }
   const int at_request = ba.iterations_in_run();
@@ -278,8 +277,8 @@ TEST(LocalBa, AbortRequestStopsTheRunAfterTheIterationInProgress) {
   EXPECT_LE(rep.iterations, at_request + 1);
   EXPECT_EQ(rep.culled_points, 0);
   EXPECT_EQ(ba.totals().aborted, 1U);
-  std::printf("abort requested after %d iterations, run stopped after %d (%.1f ms)\n",
-              at_request, rep.iterations, rep.ms);
+  std::printf("abort requested after %d iterations, run stopped after %d (%.1f ms)\n", at_request,
+              rep.iterations, rep.ms);
 }
 
 // Outside lockstep a run stops at the first iteration boundary past its wall-time budget
