@@ -6,7 +6,9 @@
 /// - `triangulation` (monocular default): keypoints matched along epipolar lines in the
 ///   neighbouring keyframes and triangulated with the map's poses (depth in map units);
 /// - `rgbd`: the sensor's depth at the keypoints (metres);
-/// - later: dense plane-sweep stereo, or a learned model, or depth maps recorded offline.
+/// - `plane_sweep`: dense multi-view stereo over the keyframe and recent tracked frames,
+///   sampled at the keypoints (depth in map units);
+/// - later: a learned model, or depth maps recorded offline.
 /// A backend only sees this request; the keyframe-creation stage aligns the scale and turns
 /// local 3D points into map-points, so a new backend never touches the front end.
 
@@ -40,6 +42,12 @@ struct DepthView {
   const cv::Mat* gray = nullptr;             ///< image, when the backend needs pixels
 };
 
+/// A recent tracked frame (dense multi-view backends).
+struct RecentView {
+  const cv::Mat* gray = nullptr;  ///< image, same size and intrinsics as the keyframe
+  SE3d T_w_c = SE3d::Identity();  ///< tracked camera-to-world
+};
+
 /// The keyframe whose depth is wanted, and its neighbours.
 struct DepthRequest {
   SE3d T_w_c = SE3d::Identity();  ///< keyframe camera-to-world
@@ -51,6 +59,9 @@ struct DepthRequest {
   std::span<const float> level_sigma2;       ///< keypoint noise variance per pyramid level
   const cv::Mat* gray = nullptr;             ///< keyframe image
   std::span<const DepthView> views;          ///< neighbours, most relevant first
+  std::span<const RecentView> recent;        ///< recent frames, newest first (may be empty)
+  double depth_hint_min = 0.0;  ///< depth range of the tracked map-points (0: unknown), map
+  double depth_hint_max = 0.0;  ///< units, for backends that sweep a range
 };
 
 /// Output buffers, sized by the caller for the request's keypoints.

@@ -7,11 +7,13 @@
 #include <string_view>
 
 #include "core/options.h"
+#include "depth/plane_sweep_depth.h"
 
 namespace mer::depth {
 
 /// Backends selectable in config.
-inline constexpr std::array<std::string_view, 3> kDepthBackends{"auto", "triangulation", "rgbd"};
+inline constexpr std::array<std::string_view, 4> kDepthBackends{"auto", "triangulation", "rgbd",
+                                                                "plane_sweep"};
 
 /// Options of the `triangulation` backend.
 struct TriangulationOptions {
@@ -70,10 +72,13 @@ struct DepthOptions {
   int min_scale_samples = 20;    ///< 3D-2D matches needed to align a non-map-scale depth
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
+  PlaneSweepDepthOptions plane_sweep;
 
   template <class V>
   void visit(V& v) {
-    v.field("backend", backend, "depth inference: auto (rgbd in rgbd mode, else triangulation)",
+    v.field("backend", backend,
+            "depth inference: auto (rgbd in rgbd mode, else triangulation), triangulation, "
+            "rgbd, plane_sweep",
             options::OneOf{kDepthBackends});
     v.field("neighbours", neighbours, "neighbouring keyframes depth inference uses",
             options::Range<int>{1, 16});
@@ -85,6 +90,8 @@ struct DepthOptions {
             options::Range<int>{1, 100000});
     v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
+    v.section("plane_sweep", plane_sweep,
+              "dense plane-sweep stereo backend (keyframe against recent tracked frames)");
   }
 };
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 
+#include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
 #include "depth/triangulation_depth.h"
 #include "platform/log_ring.h"
@@ -12,6 +13,9 @@ namespace {
 
 constexpr std::size_t kMaxObservationsRead = 64;  // observations scanned per tracked point
 constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a point refinement
+constexpr std::size_t kMinDepthHintPoints = 10;   // tracked points giving a depth range
+constexpr double kDepthHintLowQuantile = 0.05;    // the range: these quantiles of their depth
+constexpr double kDepthHintHighQuantile = 0.95;
 
 }  // namespace
 
@@ -32,6 +36,12 @@ Status KeyframeBuilder::init() {
     }
     backend_ = std::make_unique<RgbdDepth>(opts_.rgbd);
     fit_depth_ = metric_depth_sigma_rel_ > 0.0;
+  } else if (backend == "plane_sweep") {
+    auto ps = std::make_unique<PlaneSweepDepth>(opts_.plane_sweep);
+    if (Status s = ps->stereo().status(); !s.is_ok()) {
+      return invalid_argument("section 'depth.plane_sweep.stereo': " + s.message());
+    }
+    backend_ = std::move(ps);
   } else {
     backend_ = std::make_unique<TriangulationDepth>(opts_.triangulation);
   }
@@ -41,6 +51,7 @@ Status KeyframeBuilder::init() {
   support_view_.resize(n);
   support_kp_.resize(n);
   ratios_.reserve(n);
+  recent_.reserve(static_cast<std::size_t>(opts_.plane_sweep.sources));
   touched_.reserve(n * 2);
   obs_.resize(kMaxObservationsRead);
   obs_pose_.resize(kMaxObservationsRead);
@@ -187,6 +198,32 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   req.level_sigma2 = level_sigma2_;
   req.gray = &job.gray;
   req.views = views_;
+  recent_.clear();
+  for (int r = 0; r < job.num_recent; ++r) {
+    recent_.push_back({&job.recent_gray[static_cast<std::size_t>(r)],
+                       job.recent_T_w_c[static_cast<std::size_t>(r)]});
+  }
+  req.recent = recent_;
+  // Depth range of the tracked map-points (5th-95th percentile) for range-sweeping backends.
+  {
+    const SE3d T_c_w_hint = job.T_w_c.inverse();
+    ratios_.clear();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (ids[i] == map::kNoId) continue;
+      map::PointView pv;
+      if (!map_.read_point(ids[i], pv)) continue;
+      const double z = (T_c_w_hint * pv.p_w).z();
+      if (z > 0.0) ratios_.push_back(z);
+    }
+    if (ratios_.size() >= kMinDepthHintPoints) {
+      std::sort(ratios_.begin(), ratios_.end());
+      const auto at = [&](double q) {
+        return ratios_[static_cast<std::size_t>(q * static_cast<double>(ratios_.size() - 1))];
+      };
+      req.depth_hint_min = at(kDepthHintLowQuantile);
+      req.depth_hint_max = at(kDepthHintHighQuantile);
+    }
+  }
   DepthResult out{std::span<float>(depth_.data(), n), std::span<float>(confidence_.data(), n),
                   std::span<std::uint32_t>(support_view_.data(), n),
                   std::span<std::uint32_t>(support_kp_.data(), n)};

@@ -81,6 +81,7 @@ class KeyframeBuilder {
   std::vector<std::uint32_t> neighbour_ids_;
   std::vector<std::vector<std::uint32_t>> neighbour_points_;
   std::vector<DepthView> views_;
+  std::vector<RecentView> recent_;
   std::vector<float> depth_;
   std::vector<float> confidence_;
   std::vector<std::uint32_t> support_view_;

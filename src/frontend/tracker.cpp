@@ -541,6 +541,29 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
         sample_depth(frame.depth, kps_[ui].x, kps_[ui].y, opts_.rgbd_max_depth_step);
   }
   if (job.gray.size() == frame.gray.size()) frame.gray.copyTo(job.gray);
+  // Recent frames, newest first, without this frame itself.
+  job.num_recent = 0;
+  const std::size_t cap = recent_gray_.size();
+  for (std::size_t k = 0; k < recent_valid_; ++k) {
+    if (job.num_recent >= static_cast<int>(job.recent_gray.size())) break;
+    const std::size_t slot = (recent_head_ + cap - 1 - k) % cap;
+    if (recent_t_ns_[slot] == frame.t_ns) continue;
+    const auto out = static_cast<std::size_t>(job.num_recent);
+    if (job.recent_gray[out].size() != recent_gray_[slot].size()) break;
+    recent_gray_[slot].copyTo(job.recent_gray[out]);
+    job.recent_T_w_c[out] = recent_T_w_c_[slot];
+    ++job.num_recent;
+  }
+}
+
+void Tracker::keep_recent_frames(int count, double spacing_s) {
+  recent_gray_.resize(static_cast<std::size_t>(std::max(0, count)));
+  for (auto& g : recent_gray_) g.create(height_, width_, CV_8UC1);
+  recent_T_w_c_.assign(recent_gray_.size(), SE3d::Identity());
+  recent_t_ns_.assign(recent_gray_.size(), 0);
+  recent_head_ = 0;
+  recent_valid_ = 0;
+  recent_spacing_ns_ = static_cast<std::int64_t>(spacing_s * 1e9);
 }
 
 // ---- Initialization --------------------------------------------------------------------
@@ -861,6 +884,19 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     return r;
   }
   (void)track(frame, r);
+  // Ring of recent tracked frames (dense depth of later keyframes).
+  if (!recent_gray_.empty() && r.state == TrackState::kTracked &&
+      frame.gray.size() == recent_gray_[0].size()) {
+    const std::size_t cap = recent_gray_.size();
+    const std::size_t newest = (recent_head_ + cap - 1) % cap;
+    if (recent_valid_ == 0 || frame.t_ns - recent_t_ns_[newest] >= recent_spacing_ns_) {
+      frame.gray.copyTo(recent_gray_[recent_head_]);
+      recent_T_w_c_[recent_head_] = r.T_w_c;
+      recent_t_ns_[recent_head_] = frame.t_ns;
+      recent_head_ = (recent_head_ + 1) % cap;
+      recent_valid_ = std::min(recent_valid_ + 1, cap);
+    }
+  }
   return r;
 }
 

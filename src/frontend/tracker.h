@@ -86,6 +86,10 @@ class Tracker {
   /// Keypoint variance per pyramid level (for depth inference).
   std::vector<float> level_sigma2() const;
   int max_keypoints() const;
+  /// Keeps the images and poses of the last `count` tracked frames, at least `spacing_s`
+  /// apart, for keyframe jobs (dense multi-view depth); fill_keyframe_job copies them into
+  /// KeyframeJob::recent_*. Call before the first frame (allocates the ring).
+  void keep_recent_frames(int count, double spacing_s);
   const FocalReport& focal() const { return focal_; }
   const TrackerCounters& counters() const { return counters_; }
   const geometry::Pinhole& intrinsics() const { return K_; }
@@ -190,6 +194,13 @@ class Tracker {
 
   // Keyframe decided last (for fill_keyframe_job).
   SE3d last_T_w_c_ = SE3d::Identity();
+  // Recent tracked frames (keep_recent_frames): a ring, newest at recent_head_ - 1.
+  std::vector<cv::Mat> recent_gray_;
+  std::vector<SE3d> recent_T_w_c_;
+  std::vector<std::int64_t> recent_t_ns_;
+  std::size_t recent_head_ = 0;
+  std::size_t recent_valid_ = 0;
+  std::int64_t recent_spacing_ns_ = 0;
   std::uint8_t last_reason_ = 0;
   bool force_keyframe_ = false;
 };

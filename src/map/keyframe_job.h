@@ -29,6 +29,11 @@ struct KeyframeJob {
   std::vector<float> sensor_depth;                ///< sensor depth at keypoints (m, 0 = none)
   bool has_sensor_depth = false;                  ///< sensor_depth is filled (RGB-D)
   cv::Mat gray;                                   ///< copy of the image (dense backends)
+  /// Recent tracked frames before this one (dense multi-view backends), newest first:
+  /// `num_recent` valid entries of `recent_gray` / `recent_T_w_c`.
+  std::vector<cv::Mat> recent_gray;
+  std::vector<SE3d> recent_T_w_c;
+  int num_recent = 0;
 
   /// Sizes every buffer for `max_keypoints` keypoints and `width` x `height` images.
   void reserve(int max_keypoints, int width, int height) {
@@ -38,6 +43,13 @@ struct KeyframeJob {
     point_ids.resize(n);
     sensor_depth.resize(n);
     gray.create(height, width, CV_8UC1);
+  }
+  /// Room for `count` recent frames of `width` x `height` (0: none).
+  void reserve_recent(int count, int width, int height) {
+    recent_gray.resize(static_cast<std::size_t>(count));
+    for (auto& g : recent_gray) g.create(height, width, CV_8UC1);
+    recent_T_w_c.resize(static_cast<std::size_t>(count));
+    num_recent = 0;
   }
   /// Keypoints this job can hold.
   int capacity() const { return static_cast<int>(keypoints.size()); }

@@ -112,7 +112,13 @@ Status Pipeline::init(const std::string& output_dir) {
       config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,
       builder_->backend_name() == "rgbd");
   jobs_.resize(kKeyframeJobs);
-  for (auto& j : jobs_) j.reserve(tracker_->max_keypoints(), K.width, K.height);
+  const bool dense = builder_->backend_name() == "plane_sweep";
+  const int recent = dense ? config_.depth.plane_sweep.sources : 0;
+  if (dense) tracker_->keep_recent_frames(recent + 1, config_.depth.plane_sweep.source_spacing_s);
+  for (auto& j : jobs_) {
+    j.reserve(tracker_->max_keypoints(), K.width, K.height);
+    j.reserve_recent(recent, K.width, K.height);
+  }
   const auto trace = static_cast<std::size_t>(config_.telemetry.trace_capacity);
   const BoardOptions& b = config_.board;
   lat_capture_ =
