@@ -150,6 +150,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"depth_backend\": " << json_string(st.depth_backend)
     << ", \"keyframe_jobs\": " << m.keyframes << ", \"keyframe_failures\": " << m.failures
     << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
+    << ", \"fused_observations\": " << m.fused_observations
     << ", \"depth_valid\": " << m.depth_valid << "},\n";
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs

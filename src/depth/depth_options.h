@@ -25,6 +25,7 @@ struct TriangulationOptions {
   double max_reprojection_sigmas = 2.5;       ///< reprojection error bound in both views, sigmas
   int max_level_difference = 1;               ///< pyramid levels a match may differ by
   double max_scale_inconsistency = 1.5;       ///< distance ratio vs keypoint scale ratio tolerance
+  int min_views = 2;                          ///< views (with the keyframe) that must agree
 
   template <class V>
   void visit(V& v) {
@@ -47,6 +48,10 @@ struct TriangulationOptions {
             "largest factor between the ratio of distances to the two cameras and the ratio "
             "of the keypoints' pyramid scales",
             options::Range<double>{1.0, 100.0});
+    v.field("min_views", min_views,
+            "views, the new keyframe included, whose matches must agree on a point before it "
+            "gets a depth (2: one neighbour suffices)",
+            options::Range<int>{2, 17});
   }
 };
 
@@ -66,10 +71,14 @@ struct RgbdDepthOptions {
 
 /// Keyframe creation and depth inference.
 struct DepthOptions {
-  std::string backend = "auto";  ///< auto: rgbd in rgbd mode, else triangulation
-  int neighbours = 5;            ///< keyframes depth inference looks at
-  double min_confidence = 0.2;   ///< depth below this confidence makes no map-point
-  int min_scale_samples = 20;    ///< 3D-2D matches needed to align a non-map-scale depth
+  std::string backend = "auto";    ///< auto: rgbd in rgbd mode, else triangulation
+  int neighbours = 5;              ///< keyframes depth inference looks at
+  double min_confidence = 0.2;     ///< depth below this confidence makes no map-point
+  int min_scale_samples = 20;      ///< 3D-2D matches needed to align a non-map-scale depth
+  int fuse_keyframes = 0;          ///< keyframes whose map points are projected into a new one
+  double fuse_radius_px = 3.0;     ///< search radius of that projection, level-0 px (x scale)
+  int fuse_max_hamming = 50;       ///< largest descriptor distance of a projected match
+  double fuse_min_view_cos = 0.5;  ///< cosine of the largest angle to a point's mean view ray
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;
@@ -88,6 +97,21 @@ struct DepthOptions {
     v.field("min_scale_samples", min_scale_samples,
             "3D-2D matches needed to scale-align a depth not in map units",
             options::Range<int>{1, 100000});
+    v.field("fuse_keyframes", fuse_keyframes,
+            "covisible keyframes whose map points are projected into a new keyframe and "
+            "matched to its untracked keypoints (more observations per point; 0: off)",
+            options::Range<int>{0, 64});
+    v.field("fuse_radius_px", fuse_radius_px,
+            "search radius of the projection into a new keyframe, level-0 px (scaled with the "
+            "predicted pyramid level)",
+            options::Range<double>{0.5, 100.0});
+    v.field("fuse_max_hamming", fuse_max_hamming,
+            "largest descriptor distance of a map point matched into a new keyframe",
+            options::Range<int>{0, 256});
+    v.field("fuse_min_view_cos", fuse_min_view_cos,
+            "cosine of the largest angle between the new keyframe's view ray and a point's mean "
+            "viewing direction for the point to be projected into it",
+            options::Range<double>{-1.0, 1.0});
     v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
     v.section("plane_sweep", plane_sweep,

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <limits>
 
 #include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
@@ -62,6 +64,8 @@ Status KeyframeBuilder::init() {
   neighbour_points_.resize(static_cast<std::size_t>(opts_.neighbours));
   for (auto& v : neighbour_points_) v.resize(n);
   views_.reserve(static_cast<std::size_t>(opts_.neighbours));
+  ids_.resize(n);
+  fuse_dist_.resize(n);
   return Status::ok();
 }
 
@@ -92,6 +96,103 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
     if (static_cast<int>(neighbour_ids_.size()) >= opts_.neighbours) break;
     if (c.first != nk - 1) neighbour_ids_.push_back(c.first);
   }
+}
+
+int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
+  // Map points of the covisible keyframes, projected into the new keyframe and matched to its
+  // untracked keypoints (ORB-SLAM's SearchInNeighbors without the duplicate merging): points
+  // that tracking missed get their observation here instead of a duplicate by triangulation,
+  // so tracks grow longer and refinement / BA see wider baselines.
+  const auto n = static_cast<std::size_t>(job.num_keypoints);
+  if (opts_.fuse_keyframes <= 0 || n == 0 || map_.num_keyframes() == 0) return 0;
+  fuse_kfs_.assign(neighbour_ids_.begin(), neighbour_ids_.end());
+  std::vector<map::CovisibleKeyframe> covis(static_cast<std::size_t>(opts_.fuse_keyframes));
+  const std::size_t nc = map_.covisible_keyframes(map_.num_keyframes() - 1, covis);
+  for (std::size_t i = 0; i < nc; ++i) {
+    if (std::find(fuse_kfs_.begin(), fuse_kfs_.end(), covis[i].id) == fuse_kfs_.end()) {
+      fuse_kfs_.push_back(covis[i].id);
+    }
+  }
+  if (static_cast<int>(fuse_kfs_.size()) > opts_.fuse_keyframes) {
+    fuse_kfs_.resize(static_cast<std::size_t>(opts_.fuse_keyframes));
+  }
+  fuse_points_.clear();
+  for (const std::uint32_t kf : fuse_kfs_) {
+    const auto nk = static_cast<std::uint32_t>(map_.keyframe_keypoints(kf).size());
+    for (std::uint32_t k = 0; k < nk; ++k) {
+      const std::uint32_t p = map_.keyframe_point(kf, k);
+      if (p != map::kNoId && !map_.point_is_bad(p)) fuse_points_.push_back(p);
+    }
+  }
+  std::sort(fuse_points_.begin(), fuse_points_.end());
+  fuse_points_.erase(std::unique(fuse_points_.begin(), fuse_points_.end()), fuse_points_.end());
+  // Points the keyframe already tracks are not candidates.
+  std::vector<std::uint32_t> tracked;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ids_[i] != map::kNoId) tracked.push_back(ids_[i]);
+  }
+  std::sort(tracked.begin(), tracked.end());
+
+  const SE3d T_c_w = job.T_w_c.inverse();
+  const Eigen::Vector3d centre = job.T_w_c.translation();
+  const geometry::Pinhole& K = job.K;
+  const int levels = static_cast<int>(level_sigma2_.size());
+  auto level_scale = [&](int l) {
+    return std::sqrt(static_cast<double>(
+        level_sigma2_[static_cast<std::size_t>(std::clamp(l, 0, std::max(0, levels - 1)))]));
+  };
+  const double log_scale = std::log(std::max(1.0001, levels > 1 ? level_scale(1) : 1.2));
+  std::fill_n(fuse_dist_.begin(), n, std::numeric_limits<int>::max());
+  std::vector<std::uint32_t> fused_point(n, map::kNoId);
+  for (const std::uint32_t p : fuse_points_) {
+    if (std::binary_search(tracked.begin(), tracked.end(), p)) continue;
+    map::PointView pv;
+    if (!map_.read_point(p, pv)) continue;
+    const Eigen::Vector3d p_c = T_c_w * pv.p_w;
+    if (p_c.z() <= 0.0) continue;
+    const Eigen::Vector2d uv = K.project(p_c);
+    const Eigen::Vector3d ray = pv.p_w - centre;
+    const double dist = ray.norm();
+    if (pv.normal.squaredNorm() > 0.0F &&
+        ray.dot(pv.normal.cast<double>()) <
+            opts_.fuse_min_view_cos * dist * static_cast<double>(pv.normal.norm())) {
+      continue;
+    }
+    int pred = -1;
+    if (pv.max_distance > 0.0F && dist > 0.0) {
+      pred = std::clamp(static_cast<int>(std::ceil(std::log(pv.max_distance / dist) / log_scale)),
+                        0, std::max(0, levels - 1));
+    }
+    const double r = opts_.fuse_radius_px * (pred >= 0 ? level_scale(pred) : 1.0);
+    int best = std::numeric_limits<int>::max();
+    std::size_t best_k = n;
+    for (std::size_t k = 0; k < n; ++k) {
+      if (ids_[k] != map::kNoId) continue;
+      const features::Keypoint& kp = job.keypoints[k];
+      if (pred >= 0 && std::abs(kp.level - pred) > 1) continue;
+      const double dx = kp.x - uv.x();
+      const double dy = kp.y - uv.y();
+      if (dx * dx + dy * dy > r * r) continue;
+      // chi2 (2 dof, 95 %) gate on the reprojection error at the keypoint's level.
+      if (dx * dx + dy * dy > 5.991 * level_scale(kp.level) * level_scale(kp.level)) continue;
+      const int d = features::hamming(pv.descriptor, job.descriptors[k]);
+      if (d < best) {
+        best = d;
+        best_k = k;
+      }
+    }
+    if (best_k == n || best > opts_.fuse_max_hamming) continue;
+    if (best >= fuse_dist_[best_k]) continue;
+    fuse_dist_[best_k] = best;
+    fused_point[best_k] = p;
+  }
+  int fused = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    if (fused_point[k] == map::kNoId) continue;
+    ids_[k] = fused_point[k];
+    ++fused;
+  }
+  return fused;
 }
 
 void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) {
@@ -168,10 +269,12 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   const auto n = static_cast<std::size_t>(job.num_keypoints);
   const std::span<const features::Keypoint> kps(job.keypoints.data(), n);
   const std::span<const features::Descriptor> descs(job.descriptors.data(), n);
-  const std::span<const std::uint32_t> ids(job.point_ids.data(), n);
+  std::copy_n(job.point_ids.begin(), n, ids_.begin());
+  const std::span<const std::uint32_t> ids(ids_.data(), n);
 
-  // 1. Neighbours and depth inference.
+  // 1. Neighbours, projection of their points, and depth inference.
   pick_neighbours(job);
+  rep.fused_observations = fuse_local_points(job);
   views_.clear();
   for (std::size_t v = 0; v < neighbour_ids_.size(); ++v) {
     const std::uint32_t kf = neighbour_ids_[v];
@@ -325,6 +428,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   ++totals_.keyframes;
   totals_.new_points += static_cast<std::uint64_t>(rep.new_points);
   totals_.observations += static_cast<std::uint64_t>(rep.tracked_observations);
+  totals_.fused_observations += static_cast<std::uint64_t>(rep.fused_observations);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
   totals_.total_ms += ms;
   totals_.max_ms = std::max(totals_.max_ms, ms);

@@ -27,6 +27,7 @@ struct KeyframeBuildReport {
   bool ok = false;
   std::uint32_t keyframe = 0xFFFFFFFFu;  ///< new keyframe id
   int tracked_observations = 0;          ///< 3D-2D edges from tracked map-points
+  int fused_observations = 0;            ///< of these, found by projecting covisible points
   int depth_valid = 0;                   ///< keypoints that got a depth
   int new_points = 0;                    ///< map-points created
   int neighbours = 0;                    ///< views given to depth inference
@@ -41,6 +42,7 @@ struct KeyframeBuildTotals {
   std::uint64_t failures = 0;  ///< jobs that could not be inserted (map full, ...)
   std::uint64_t new_points = 0;
   std::uint64_t observations = 0;
+  std::uint64_t fused_observations = 0;  ///< of these, found by projection (depth.fuse_keyframes)
   std::uint64_t depth_valid = 0;
   double total_ms = 0.0;
   double max_ms = 0.0;
@@ -68,6 +70,7 @@ class KeyframeBuilder {
  private:
   void pick_neighbours(const map::KeyframeJob& job);
   void refine_point(std::uint32_t p, const geometry::Pinhole& K);
+  int fuse_local_points(const map::KeyframeJob& job);
 
   DepthOptions opts_;
   std::string mode_;
@@ -92,8 +95,12 @@ class KeyframeBuilder {
   std::vector<SE3d> obs_pose_;
   std::vector<Eigen::Vector2d> obs_uv_;
   std::vector<double> obs_w_;
-  std::vector<double> obs_depth_;    // keyframe depth of the observation (0: none)
-  std::vector<double> obs_depth_w_;  // 1 / depth sigma^2
+  std::vector<double> obs_depth_;           // keyframe depth of the observation (0: none)
+  std::vector<double> obs_depth_w_;         // 1 / depth sigma^2
+  std::vector<std::uint32_t> ids_;          // job.point_ids plus the fused associations
+  std::vector<int> fuse_dist_;              // descriptor distance of a fused association
+  std::vector<std::uint32_t> fuse_points_;  // candidate points of the projection
+  std::vector<std::uint32_t> fuse_kfs_;     // keyframes they come from
 };
 
 }  // namespace mer::depth

@@ -145,7 +145,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       poses[nviews] = T_cj_w[vi];
       rays[nviews++] = K.unproject({kq.x, kq.y});
     }
-    if (nviews < 2) continue;
+    if (nviews < 2 || static_cast<int>(nviews) < opts_.min_views) continue;
     Eigen::Vector3d X_w = X_best;
     if (nviews > 2 && !geometry::triangulate_multi_view(
                           std::span<const SE3d>(poses.data(), nviews),

@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <thread>
 
@@ -86,6 +87,29 @@ TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
   EXPECT_LT(ate, 0.02) << "RGB-D synthetic after final BA (the run itself is ~5 mm)";
   cv::FileStorage sp = open_summary(plain);
   EXPECT_TRUE(sp["final_ba"].empty());
+}
+
+// Opt-in monocular mapping options (depth.fuse_keyframes, triangulation.min_views) run end
+// to end: covisible points are found again by projection and counted.
+TEST(MerSlamSynthetic, FusingCovisiblePointsAddsObservations) {
+  const auto d = fresh_dir("mer_e2e_fuse");
+  std::filesystem::create_directories(d);
+  const std::string cfg = (d / "fuse.yaml").string();
+  {
+    std::FILE* f = std::fopen(cfg.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("depth:\n  fuse_keyframes: 10\n  triangulation:\n    min_views: 3\n", f);
+    std::fclose(f);
+  }
+  const auto r = run_command(quote(kExe) + " --lockstep --input synthetic:room_loop " +
+                             "--max-frames 200 --quiet --config " + quote(cfg) + " --output " +
+                             quote(d.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  cv::FileStorage s = open_summary(d);
+  ASSERT_TRUE(s.isOpened());
+  EXPECT_GT(static_cast<int>(s["map"]["fused_observations"]), 0);
+  EXPECT_GT(static_cast<int>(s["map"]["new_points"]), 0);
+  EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
 }
 
 TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
