@@ -24,7 +24,7 @@ struct PipelineOptions {
   int acquire_timeout_ms = 1000;  ///< wait for a frame this long before retrying
   int source_timeout_ms = 10000;  ///< no frame for this long ends the run (source_error)
   std::string focal = "fixed";    ///< fixed: use calibration; auto: estimate the focal length
-  bool final_ba = false;  ///< after the stream: full-graph BA, trajectory_final_ba.txt
+  bool final_ba = false;          ///< after the stream: full-graph BA, trajectory_final_ba.txt
 
   template <class V>
   void visit(V& v) {
