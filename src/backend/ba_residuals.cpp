@@ -51,8 +51,8 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
   const Eigen::Matrix3d R = rotation(parameters[0]);
   const Eigen::Map<const Eigen::Vector3d> t(parameters[1]);
   const Eigen::Map<const Eigen::Vector3d> X(parameters[2]);
-  const Eigen::Vector3d RX = R * X;
-  const Eigen::Vector3d p = RX + t;
+  const Eigen::Vector3d x_rot = R * X;
+  const Eigen::Vector3d p = x_rot + t;
   if (p.z() <= 0.0) return false;
   const double iz = 1.0 / p.z();
   residuals[0] = (K_.fx * p.x() * iz + K_.cx - u_) * inv_sigma_;
@@ -63,7 +63,7 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
   d_r_d_p *= inv_sigma_;
   if (jacobians[0] != nullptr) {  // d p / d delta = -[R X]x (left perturbation)
     Eigen::Map<RowMajor24> J(jacobians[0]);
-    J.leftCols<3>() = -d_r_d_p * geometry::hat(RX);
+    J.leftCols<3>() = -d_r_d_p * geometry::hat(x_rot);
     J.col(3).setZero();
   }
   if (jacobians[1] != nullptr) {
@@ -83,12 +83,12 @@ bool DepthCost::Evaluate(double const* const* parameters, double* residuals,
   const Eigen::Map<const Eigen::Vector3d> t(parameters[1]);
   const Eigen::Map<const Eigen::Vector3d> X(parameters[2]);
   const double s = parameters[3][0];
-  const Eigen::Vector3d RX = R * X;
-  residuals[0] = (RX.z() + t.z() - s * d_) * inv_sigma_;
+  const Eigen::Vector3d x_rot = R * X;
+  residuals[0] = (x_rot.z() + t.z() - s * d_) * inv_sigma_;
   if (jacobians == nullptr) return true;
   if (jacobians[0] != nullptr) {  // row 2 of -[R X]x
-    jacobians[0][0] = RX.y() * inv_sigma_;
-    jacobians[0][1] = -RX.x() * inv_sigma_;
+    jacobians[0][0] = x_rot.y() * inv_sigma_;
+    jacobians[0][1] = -x_rot.x() * inv_sigma_;
     jacobians[0][2] = 0.0;
     jacobians[0][3] = 0.0;
   }
