@@ -66,6 +66,11 @@ class KeyframeBuilder {
 
   const KeyframeBuildTotals& totals() const { return totals_; }
   std::string_view backend_name() const { return backend_ ? backend_->name() : "none"; }
+  /// Keyframe depth is metric sensor depth in a metric (RGB-D) map: the back end may use it
+  /// as is (3D-3D edges without a per-keyframe scale).
+  bool metric_map_depth() const {
+    return backend_ && backend_->scale() == DepthScale::kMetric && mode_ == "rgbd";
+  }
 
  private:
   void pick_neighbours(const map::KeyframeJob& job);

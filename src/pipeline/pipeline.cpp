@@ -110,7 +110,7 @@ Status Pipeline::init(const std::string& output_dir) {
   if (Status d = builder_->init(); !d.is_ok()) return d;
   ba_ = std::make_unique<backend::LocalBundleAdjuster>(
       config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,
-      builder_->backend_name() == "rgbd");
+      builder_->metric_map_depth());
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;

@@ -147,7 +147,7 @@ void bm_local_ba(benchmark::State& state) {
                                    ba_opts.depth_sigma_rel);
     (void)builder.init();
     backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), false,
-                                    builder.backend_name() == "rgbd");
+                                    builder.metric_map_depth());
     map::KeyframeJob job;
     job.reserve(tracker.max_keypoints(), seq.width, seq.height);
     for (const hal::Frame& f : seq.frames) {

@@ -87,7 +87,7 @@ RunOutcome run(Rig& rig, int frames, PoseFn&& pose_at, const std::string& mode, 
                                  ba_opts.depth_sigma_rel);
   EXPECT_TRUE(builder.init().is_ok());
   backend::LocalBundleAdjuster ba(ba_opts, map, tracker.level_sigma2(), true,
-                                  builder.backend_name() == "rgbd");
+                                  builder.metric_map_depth());
   map::KeyframeJob job;
   job.reserve(tracker.max_keypoints(), rig.cam_opts.width, rig.cam_opts.height);
   RunOutcome out;
