@@ -151,7 +151,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"keyframe_jobs\": " << m.keyframes << ", \"keyframe_failures\": " << m.failures
     << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
     << ", \"fused_observations\": " << m.fused_observations
-    << ", \"depth_valid\": " << m.depth_valid << "},\n";
+    << ", \"view_observations\": " << m.view_observations << ", \"depth_valid\": " << m.depth_valid
+    << "},\n";
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
     << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers

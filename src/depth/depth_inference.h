@@ -71,6 +71,11 @@ struct DepthResult {
   std::span<std::uint32_t> support_view;      ///< index into views of the matched view, or ~0
   std::span<std::uint32_t> support_keypoint;  ///< keypoint index in that view, or ~0
   int num_valid = 0;                          ///< keypoints that got a depth
+  /// Optional (empty: not wanted), for backends that match keypoints across views: every
+  /// view's keypoint that agrees with the depth, row-major [keypoint][view] with
+  /// views.size() columns, kNoSupport where the view did not agree. The new map-point is
+  /// observed in all of them, not only in support_view.
+  std::span<std::uint32_t> view_keypoint;
 };
 
 /// No supporting view.

@@ -25,7 +25,7 @@ struct TriangulationOptions {
   double max_reprojection_sigmas = 2.5;       ///< reprojection error bound in both views, sigmas
   int max_level_difference = 1;               ///< pyramid levels a match may differ by
   double max_scale_inconsistency = 1.5;       ///< distance ratio vs keypoint scale ratio tolerance
-  int min_views = 2;                          ///< views (with the keyframe) that must agree
+  int min_views = 3;                          ///< views (with the keyframe) that must agree
 
   template <class V>
   void visit(V& v) {
@@ -75,7 +75,7 @@ struct DepthOptions {
   int neighbours = 5;              ///< keyframes depth inference looks at
   double min_confidence = 0.2;     ///< depth below this confidence makes no map-point
   int min_scale_samples = 20;      ///< 3D-2D matches needed to align a non-map-scale depth
-  int fuse_keyframes = 0;          ///< keyframes whose map points are projected into a new one
+  int fuse_keyframes = 10;         ///< keyframes whose map points are projected into a new one
   double fuse_radius_px = 3.0;     ///< search radius of that projection, level-0 px (x scale)
   int fuse_max_hamming = 50;       ///< largest descriptor distance of a projected match
   double fuse_min_view_cos = 0.5;  ///< cosine of the largest angle to a point's mean view ray

@@ -52,6 +52,7 @@ Status KeyframeBuilder::init() {
   confidence_.resize(n);
   support_view_.resize(n);
   support_kp_.resize(n);
+  view_kp_.resize(n * static_cast<std::size_t>(opts_.neighbours));
   ratios_.reserve(n);
   recent_.reserve(static_cast<std::size_t>(opts_.plane_sweep.sources));
   touched_.reserve(n * 2);
@@ -327,9 +328,12 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
       req.depth_hint_max = at(kDepthHintHighQuantile);
     }
   }
-  DepthResult out{std::span<float>(depth_.data(), n), std::span<float>(confidence_.data(), n),
-                  std::span<std::uint32_t>(support_view_.data(), n),
-                  std::span<std::uint32_t>(support_kp_.data(), n)};
+  DepthResult out;
+  out.depth = std::span<float>(depth_.data(), n);
+  out.confidence = std::span<float>(confidence_.data(), n);
+  out.support_view = std::span<std::uint32_t>(support_view_.data(), n);
+  out.support_keypoint = std::span<std::uint32_t>(support_kp_.data(), n);
+  out.view_keypoint = std::span<std::uint32_t>(view_kp_.data(), n * views_.size());
   const Status ds = backend_->infer(req, out);
   if (!ds.is_ok()) {
     MER_LOG_WARN("keyframe %llu: depth inference failed: %s",
@@ -411,6 +415,13 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
     if (sv != kNoSupport && sv < views_.size()) {
       (void)map_.add_observation(p.value(), views_[sv].id, support_kp_[i]);
     }
+    if (!out.view_keypoint.empty()) {
+      for (std::size_t v = 0; v < views_.size(); ++v) {
+        const std::uint32_t j = out.view_keypoint[i * views_.size() + v];
+        if (j == kNoSupport || v == sv) continue;
+        if (map_.add_observation(p.value(), views_[v].id, j)) ++rep.view_observations;
+      }
+    }
     touched_.push_back(p.value());
   }
   // Structure refinement: a tracked point seen from a new keyframe gets a wider baseline;
@@ -429,6 +440,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   totals_.new_points += static_cast<std::uint64_t>(rep.new_points);
   totals_.observations += static_cast<std::uint64_t>(rep.tracked_observations);
   totals_.fused_observations += static_cast<std::uint64_t>(rep.fused_observations);
+  totals_.view_observations += static_cast<std::uint64_t>(rep.view_observations);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
   totals_.total_ms += ms;
   totals_.max_ms = std::max(totals_.max_ms, ms);

@@ -30,10 +30,11 @@ struct KeyframeBuildReport {
   int fused_observations = 0;            ///< of these, found by projecting covisible points
   int depth_valid = 0;                   ///< keypoints that got a depth
   int new_points = 0;                    ///< map-points created
-  int neighbours = 0;                    ///< views given to depth inference
-  int scale_samples = 0;                 ///< 3D-2D matches used for the scale ratio
-  double scale_ratio = 1.0;              ///< map depth / inferred depth (median)
-  bool scale_applied = false;            ///< the ratio was applied to the depth
+  int view_observations = 0;   ///< observations of new points in other agreeing neighbours
+  int neighbours = 0;          ///< views given to depth inference
+  int scale_samples = 0;       ///< 3D-2D matches used for the scale ratio
+  double scale_ratio = 1.0;    ///< map depth / inferred depth (median)
+  bool scale_applied = false;  ///< the ratio was applied to the depth
 };
 
 /// Totals over the run (summary.json `mapping`).
@@ -43,6 +44,7 @@ struct KeyframeBuildTotals {
   std::uint64_t new_points = 0;
   std::uint64_t observations = 0;
   std::uint64_t fused_observations = 0;  ///< of these, found by projection (depth.fuse_keyframes)
+  std::uint64_t view_observations = 0;   ///< of new points, beyond their first two views
   std::uint64_t depth_valid = 0;
   double total_ms = 0.0;
   double max_ms = 0.0;
@@ -94,6 +96,7 @@ class KeyframeBuilder {
   std::vector<float> confidence_;
   std::vector<std::uint32_t> support_view_;
   std::vector<std::uint32_t> support_kp_;
+  std::vector<std::uint32_t> view_kp_;  // agreeing keypoint per [keypoint][view]
   std::vector<double> ratios_;
   std::vector<std::uint32_t> touched_;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> obs_;

@@ -32,6 +32,12 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
   std::fill_n(out.support_view.begin(), n, kNoSupport);
   std::fill_n(out.support_keypoint.begin(), n, kNoSupport);
   out.num_valid = 0;
+  const std::size_t stride = req.views.size();
+  const bool want_views = !out.view_keypoint.empty();
+  if (want_views && out.view_keypoint.size() < n * stride) {
+    return invalid_argument("triangulation depth: view_keypoint smaller than keypoints x views");
+  }
+  if (want_views) std::fill_n(out.view_keypoint.begin(), n * stride, kNoSupport);
   const geometry::Pinhole& K = req.K;
   const double f = 0.5 * (K.fx + K.fy);
   const SE3d T_ck_w = req.T_w_c.inverse();
@@ -131,6 +137,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
     if (best_v == nv || best_cos > min_cos_parallax) continue;
     // Views consistent with X_best.
     std::size_t nviews = 0;
+    std::array<std::uint32_t, kMaxViews + 1> view_of{};  // view index per entry (0: keyframe)
     poses[nviews] = T_ck_w;
     rays[nviews++] = x_k;
     for (std::size_t vi = 0; vi < nv; ++vi) {
@@ -143,6 +150,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
         continue;
       }
       poses[nviews] = T_cj_w[vi];
+      view_of[nviews] = static_cast<std::uint32_t>(vi);
       rays[nviews++] = K.unproject({kq.x, kq.y});
     }
     if (nviews < 2 || static_cast<int>(nviews) < opts_.min_views) continue;
@@ -178,6 +186,20 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
                            (0.5 + 0.5 * views_factor));
     out.support_view[i] = static_cast<std::uint32_t>(best_v);
     out.support_keypoint[i] = match_[i * nv + best_v];
+    if (want_views) {
+      // Views that agreed with the first estimate and still reproject near the final one.
+      for (std::size_t e = 1; e < nviews; ++e) {
+        const std::size_t vi = view_of[e];
+        const std::uint32_t j = match_[i * nv + vi];
+        const features::Keypoint& kq = req.views[vi].keypoints[j];
+        const Eigen::Vector3d p_j = T_cj_w[vi] * X_w;
+        if (p_j.z() <= 0.0 || (K.project(p_j) - Eigen::Vector2d(kq.x, kq.y)).squaredNorm() >
+                                  bound * sigma2(kq.level)) {
+          continue;
+        }
+        out.view_keypoint[i * stride + vi] = j;
+      }
+    }
     ++out.num_valid;
   }
   return Status::ok();

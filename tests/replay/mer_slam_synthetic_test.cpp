@@ -89,25 +89,18 @@ TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
   EXPECT_TRUE(sp["final_ba"].empty());
 }
 
-// Opt-in monocular mapping options (depth.fuse_keyframes, triangulation.min_views) run end
-// to end: covisible points are found again by projection and counted.
+// Monocular mapping by default: covisible points are found again by projection into a new
+// keyframe (depth.fuse_keyframes), a new point is observed in every neighbour that agreed on
+// it (view_observations), and both are counted.
 TEST(MerSlamSynthetic, FusingCovisiblePointsAddsObservations) {
   const auto d = fresh_dir("mer_e2e_fuse");
-  std::filesystem::create_directories(d);
-  const std::string cfg = (d / "fuse.yaml").string();
-  {
-    std::FILE* f = std::fopen(cfg.c_str(), "w");
-    ASSERT_NE(f, nullptr);
-    std::fputs("depth:\n  fuse_keyframes: 10\n  triangulation:\n    min_views: 3\n", f);
-    std::fclose(f);
-  }
   const auto r = run_command(quote(kExe) + " --lockstep --input synthetic:room_loop " +
-                             "--max-frames 200 --quiet --config " + quote(cfg) + " --output " +
-                             quote(d.string()));
+                             "--max-frames 200 --quiet --output " + quote(d.string()));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   cv::FileStorage s = open_summary(d);
   ASSERT_TRUE(s.isOpened());
   EXPECT_GT(static_cast<int>(s["map"]["fused_observations"]), 0);
+  EXPECT_GT(static_cast<int>(s["map"]["view_observations"]), 0);
   EXPECT_GT(static_cast<int>(s["map"]["new_points"]), 0);
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
 }

@@ -104,7 +104,7 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
   std::vector<float> conf(n);
   std::vector<std::uint32_t> sv(n);
   std::vector<std::uint32_t> sk(n);
-  DepthResult out{depth, conf, sv, sk};
+  DepthResult out{depth, conf, sv, sk, 0, {}};
   TriangulationDepth tri(TriangulationOptions{});
   ASSERT_TRUE(tri.infer(req, out).is_ok());
   // With 1 px keypoint noise at f = 457 px, the relative depth error of a point seen under
@@ -128,6 +128,78 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
               abs_median, p90);
 }
 
+// Every view that agreed on a depth is reported with its keypoint, and each such keypoint
+// is the true image of the keyframe's keypoint (checked with the rendered depth).
+TEST_F(TriangulationDepthTest, ReportsEveryAgreeingViewKeypoint) {
+  const View key = render(2.0);
+  std::vector<View> others = {render(1.4), render(1.6), render(1.8)};
+  std::vector<DepthView> views;
+  for (std::size_t i = 0; i < others.size(); ++i) {
+    views.push_back(DepthView{static_cast<std::uint32_t>(i), others[i].T_w_c, others[i].kps,
+                              others[i].descs, others[i].ids, &others[i].gray});
+  }
+  DepthRequest req;
+  req.T_w_c = key.T_w_c;
+  req.K = K_;
+  req.keypoints = key.kps;
+  req.descriptors = key.descs;
+  req.point_ids = key.ids;
+  req.level_sigma2 = sigma2_;
+  req.views = views;
+  const std::size_t n = key.kps.size();
+  const std::size_t nv = views.size();
+  std::vector<float> depth(n);
+  std::vector<float> conf(n);
+  std::vector<std::uint32_t> sv(n);
+  std::vector<std::uint32_t> sk(n);
+  std::vector<std::uint32_t> vk(n * nv);
+  TriangulationOptions opts;
+  opts.min_views = 3;
+  TriangulationDepth tri(opts);
+  DepthResult small{depth, conf, sv, sk, 0, std::span<std::uint32_t>(vk.data(), n)};
+  EXPECT_FALSE(tri.infer(req, small).is_ok()) << "a buffer smaller than keypoints x views";
+  DepthResult out{depth, conf, sv, sk, 0, vk};
+  ASSERT_TRUE(tri.infer(req, out).is_ok());
+  ASSERT_GT(out.num_valid, 100);
+  int listed = 0;
+  int near_truth = 0;
+  int with_two = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    int views_listed = 0;
+    for (std::size_t v = 0; v < nv; ++v) {
+      const std::uint32_t j = vk[i * nv + v];
+      if (j == kNoSupport) continue;
+      ASSERT_GT(depth[i], 0.0F) << "a view listed for a keypoint without depth";
+      ASSERT_LT(j, others[v].kps.size());
+      ++views_listed;
+      // True 3D point of keypoint i, projected into view v.
+      const int u = static_cast<int>(std::lround(key.kps[i].x));
+      const int r = static_cast<int>(std::lround(key.kps[i].y));
+      const Eigen::Vector3d p_w =
+          key.T_w_c * (K_.unproject({key.kps[i].x, key.kps[i].y}) * key.depth.at<float>(r, u));
+      const Eigen::Vector2d uv = K_.project(others[v].T_w_c.inverse() * p_w);
+      const Eigen::Vector2d kq(others[v].kps[j].x, others[v].kps[j].y);
+      ++listed;
+      near_truth += (uv - kq).norm() < 3.0 ? 1 : 0;
+    }
+    if (depth[i] > 0.0F) {
+      // min_views 3: the keyframe and at least two views agreed on the first estimate; the
+      // final multi-view point may leave one of them outside the bound.
+      EXPECT_GE(views_listed, 1) << "keypoint " << i;
+      if (vk[i * nv + sv[i]] != kNoSupport) {
+        EXPECT_EQ(vk[i * nv + sv[i]], sk[i]);
+      }
+      with_two += views_listed >= 2 ? 1 : 0;
+    }
+  }
+  // Rounding the keypoint to a pixel and occlusion boundaries put a few beyond 3 px.
+  EXPECT_GT(near_truth, listed * 9 / 10) << near_truth << " of " << listed;
+  EXPECT_GT(with_two, out.num_valid * 9 / 10) << with_two << " of " << out.num_valid;
+  std::printf(
+      "listed view keypoints %d, within 3 px of the truth %d, keypoints with two %d of %d\n",
+      listed, near_truth, with_two, out.num_valid);
+}
+
 TEST(RgbdDepth, PassesSensorDepthWithinRange) {
   const std::vector<features::Keypoint> kps(4);
   const std::vector<float> sensor = {0.05F, 1.5F, 3.0F, 20.0F};
@@ -138,7 +210,7 @@ TEST(RgbdDepth, PassesSensorDepthWithinRange) {
   std::vector<float> conf(4);
   std::vector<std::uint32_t> sv(4);
   std::vector<std::uint32_t> sk(4);
-  DepthResult out{depth, conf, sv, sk};
+  DepthResult out{depth, conf, sv, sk, 0, {}};
   RgbdDepth rgbd(RgbdDepthOptions{});
   ASSERT_TRUE(rgbd.infer(req, out).is_ok());
   EXPECT_EQ(out.num_valid, 2);
