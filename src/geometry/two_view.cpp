@@ -587,6 +587,8 @@ const char* to_string(TwoViewRefusal r) {
       return "too_few_triangulated";
     case TwoViewRefusal::kAmbiguous:
       return "ambiguous";
+    case TwoViewRefusal::kUncertainMotion:
+      return "uncertain_motion";
   }
   return "unknown";
 }
@@ -843,6 +845,11 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   r.median_parallax_deg = median_of(final_check.parallax_deg);
   if (r.median_parallax_deg < o.min_parallax_deg) {
     return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+  }
+  if (r.median_parallax_deg < o.confident_parallax_deg &&
+      (r.model != TwoViewModel::kEssential ||
+       r.translation_dir_sigma_deg > o.max_translation_dir_sigma_deg)) {
+    return refuse(std::move(r), TwoViewRefusal::kUncertainMotion);
   }
   if (final_check.good < o.min_triangulated) {
     return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);

@@ -15,6 +15,11 @@
 /// - pure rotation: a rotation-only model (fitted to the homography inliers) explains >= 70 %
 ///   of the best model's inliers, whatever the rotation angle;
 /// - low parallax: median parallax of the consistent points below min_parallax_deg;
+/// - uncertain motion: median parallax below confident_parallax_deg, unless the model is the
+///   essential matrix and its refined translation direction has a 1-sigma uncertainty of at
+///   most max_translation_dir_sigma_deg. At low parallax a homography's decomposition and a
+///   poorly constrained essential matrix trade a rotation for a sideways translation (forward
+///   motion while turning, facing a wall), and the map they build is bent;
 /// - ambiguous: a second candidate has >= ambiguity_ratio of the winner's good points and is
 ///   not refuted by them (fewer than 5 % of them behind its cameras or off their pixels),
 ///   e.g. the two-fold homography ambiguity of a plane under forward motion.
@@ -48,9 +53,11 @@ struct TwoViewOptions {
       1.0;                    ///< median parallax needed (refuses pure rotation, tiny baselines)
   int min_matches = 100;      ///< fewer correspondences -> refuse
   int min_triangulated = 50;  ///< fewer good 3D points -> refuse
-  double min_median_disparity_px = 8.0;  ///< below -> static scene / no motion, refuse
-  double homography_ratio = 0.45;        ///< R_H above -> homography model
-  double min_point_parallax_deg = 0.5;   ///< points seen under less parallax are not kept
+  double min_median_disparity_px = 8.0;         ///< below -> static scene / no motion, refuse
+  double homography_ratio = 0.45;               ///< R_H above -> homography model
+  double min_point_parallax_deg = 0.5;          ///< points seen under less parallax are not kept
+  double confident_parallax_deg = 3.0;          ///< median parallax accepted whatever the model
+  double max_translation_dir_sigma_deg = 0.25;  ///< below it: essential with a smaller sigma
   double ambiguity_ratio = 0.7;  ///< a 2nd candidate with this fraction of the winner's good
                                  ///< points, not refuted by them -> ambiguous, refuse
   std::uint64_t seed = 1;        ///< RANSAC random seed (deterministic runs)
@@ -79,6 +86,15 @@ struct TwoViewOptions {
     v.field("min_point_parallax_deg", min_point_parallax_deg,
             "points triangulated under less parallax are not kept in the map, deg",
             options::Range<double>{0.0, 90.0});
+    v.field("confident_parallax_deg", confident_parallax_deg,
+            "median parallax at which either model initializes; below it (and above "
+            "min_parallax_deg) only an essential model with a well-determined translation "
+            "direction does, deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("max_translation_dir_sigma_deg", max_translation_dir_sigma_deg,
+            "below confident_parallax_deg: the largest 1-sigma uncertainty of the essential "
+            "model's refined translation direction that initializes, deg",
+            options::Range<double>{0.0, 180.0});
     v.field("ambiguity_ratio", ambiguity_ratio,
             "refuse when another motion candidate has this fraction of the winner's good points "
             "(unless those points refute it)",
@@ -103,6 +119,7 @@ enum class TwoViewRefusal : std::uint8_t {
   kLowParallax,         ///< median parallax below min_parallax_deg
   kTooFewTriangulated,  ///< fewer than min_triangulated good points (or model inliers)
   kAmbiguous,           ///< two motion candidates explain the data about equally well
+  kUncertainMotion,     ///< below confident_parallax_deg without a well-determined direction
 };
 
 /// Short name of a refusal reason ("pure_rotation", ...).

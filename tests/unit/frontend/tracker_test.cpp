@@ -151,19 +151,20 @@ TEST(TrackerSynthetic, StaticStartIsRefused) {
   EXPECT_FALSE(o.initialized);
 }
 
-// Tracking never breaks after initialization and the trajectory has the right shape. The
-// issue's accuracy target (ATE <= 1 % of the path) is NOT met yet: monocular scale drifts
-// (about 10 % of the path on the full 600-frame orbit). The bound below is a regression
-// guard against gross failures (a collapsed or exploded scale), not the target.
+// Tracking never breaks after initialization and the trajectory is accurate. The
+// initializer waits for 3 degrees of parallax (or a well-determined essential model): on this
+// texture seed the camera faces a wall whose pairs are refused as ambiguous until frame ~275,
+// so the run is long enough to track 145 frames after it. Measured: 0.72 % of the path
+// (the target is 1 %).
 TEST(TrackerSynthetic, MonocularOrbitTracksEveryFrameAfterInit) {
   Rig rig;
   const RunOutcome o = run(
-      rig, 300, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "mono", false);
+      rig, 420, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "mono", false);
   ASSERT_TRUE(o.initialized);
-  EXPECT_LT(o.init_seq, 150U);
+  EXPECT_LT(o.init_seq, 300U);
   EXPECT_GE(o.tracked_after_init, 0.98 * o.frames_after_init);
   EXPECT_GT(o.path_length, 0.5);
-  EXPECT_LT(o.ate_rmse, 0.25 * o.path_length)
+  EXPECT_LT(o.ate_rmse, 0.01 * o.path_length)
       << "ATE " << o.ate_rmse << " m over " << o.path_length << " m";
   std::printf("mono: init at %llu, ATE %.4f m over %.3f m (%.2f %%)\n",
               static_cast<unsigned long long>(o.init_seq), o.ate_rmse, o.path_length,

@@ -55,12 +55,12 @@ struct Scene {
 };
 
 Scene make_scene(const SE3d& T_c1_c0, int n, double noise_px, double outlier_fraction, bool planar,
-                 std::uint64_t seed) {
+                 std::uint64_t seed, double min_depth = 2.0, double max_depth = 6.0) {
   const Pinhole K = camera();
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(kMarginPx, kWidth - kMarginPx);
   std::uniform_real_distribution<double> v(kMarginPx, kHeight - kMarginPx);
-  std::uniform_real_distribution<double> depth(2.0, 6.0);
+  std::uniform_real_distribution<double> depth(min_depth, max_depth);
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   std::normal_distribution<double> noise(0.0, noise_px);
   // Plane n^T X = d in camera 0, tilted ~35 deg from fronto-parallel, 4 m away on the axis.
@@ -224,6 +224,50 @@ TEST(TwoView, TinyBaselineIsRefused) {
   EXPECT_TRUE(r.refusal == TwoViewRefusal::kPureRotation ||
               r.refusal == TwoViewRefusal::kLowParallax)
       << to_string(r.refusal);
+}
+
+// A plane under a small baseline: the homography's decomposition trades rotation for
+// sideways translation, so below confident_parallax_deg it does not initialize; with the
+// threshold lowered the same pair does.
+TEST(TwoView, LowParallaxHomographyIsRefusedAsUncertainMotion) {
+  const SE3d T_c1_c0_gt = motion({0.3, 1.0, -0.2}, 5.0, {0.15, -0.03, 0.045});
+  const Scene s = make_scene(T_c1_c0_gt, 800, 1.0, 0.1, /*planar=*/true, 7);
+  const TwoViewOptions o;
+  const TwoViewResult r = reconstruct_two_view(s.uv0, s.uv1, camera(), o);
+  EXPECT_FALSE(r.ok);
+  EXPECT_EQ(r.refusal, TwoViewRefusal::kUncertainMotion) << to_string(r.refusal);
+  EXPECT_EQ(r.model, TwoViewModel::kHomography);
+  EXPECT_GE(r.median_parallax_deg, o.min_parallax_deg);
+  EXPECT_LT(r.median_parallax_deg, o.confident_parallax_deg);
+  TwoViewOptions lowered = o;
+  lowered.confident_parallax_deg = o.min_parallax_deg;
+  const TwoViewResult accepted = reconstruct_two_view(s.uv0, s.uv1, camera(), lowered);
+  EXPECT_TRUE(accepted.ok) << to_string(accepted.refusal);
+  std::printf("plane, parallax %.2f deg: refused as %s; accepted with the threshold lowered\n",
+              r.median_parallax_deg, to_string(r.refusal));
+}
+
+// Below confident_parallax_deg an essential model initializes only with a well-determined
+// translation direction: a deep scene (near and far points, as a road) seen across a
+// sideways baseline with half-pixel keypoints has one.
+TEST(TwoView, LowParallaxEssentialWithASharpDirectionIsAccepted) {
+  const SE3d T_c1_c0_gt = motion({0, 1, 0}, 2.0, {0.3, 0.0, 0.0});
+  const Scene s = make_scene(T_c1_c0_gt, 1000, 0.5, 0.1, /*planar=*/false, 8, 1.0, 20.0);
+  TwoViewOptions o;
+  o.sigma_px = 0.5;
+  const TwoViewResult r = reconstruct_two_view(s.uv0, s.uv1, camera(), o);
+  ASSERT_TRUE(r.ok) << to_string(r.refusal) << " at " << r.median_parallax_deg << " deg, sigma "
+                    << r.translation_dir_sigma_deg;
+  EXPECT_EQ(r.model, TwoViewModel::kEssential);
+  EXPECT_LT(r.median_parallax_deg, o.confident_parallax_deg);
+  EXPECT_LE(r.translation_dir_sigma_deg, o.max_translation_dir_sigma_deg);
+  TwoViewOptions strict = o;
+  strict.max_translation_dir_sigma_deg = 0.5 * r.translation_dir_sigma_deg;
+  const TwoViewResult refused = reconstruct_two_view(s.uv0, s.uv1, camera(), strict);
+  EXPECT_FALSE(refused.ok);
+  EXPECT_EQ(refused.refusal, TwoViewRefusal::kUncertainMotion) << to_string(refused.refusal);
+  std::printf("general scene, parallax %.2f deg, direction sigma %.3f deg: accepted\n",
+              r.median_parallax_deg, r.translation_dir_sigma_deg);
 }
 
 TEST(TwoView, StaticSceneIsRefused) {
@@ -411,6 +455,7 @@ TEST(TwoView, OptionsVisitAndNames) {
   EXPECT_FALSE(bad.status().is_ok());
   EXPECT_STREQ(to_string(TwoViewRefusal::kPureRotation), "pure_rotation");
   EXPECT_STREQ(to_string(TwoViewRefusal::kStatic), "static");
+  EXPECT_STREQ(to_string(TwoViewRefusal::kUncertainMotion), "uncertain_motion");
   EXPECT_STREQ(to_string(TwoViewModel::kEssential), "essential");
 }
 

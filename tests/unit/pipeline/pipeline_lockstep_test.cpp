@@ -61,10 +61,12 @@ TEST(PipelineLockstep, SameInputGivesByteIdenticalOutputs) {
 }
 
 // Monocular: two-view initialization, triangulation depth and bundle adjustment included.
+// Texture seed 5 starts the map at frame 26 (seed 1 faces a wall whose pairs the initializer
+// refuses until frame ~280).
 TEST(PipelineLockstep, MonocularRunsAreByteIdentical) {
   const auto base = std::filesystem::temp_directory_path() / "mer_lockstep_det_mono";
-  const PipelineStats a = run_once(base / "a", 170, 1, "mono");
-  const PipelineStats b = run_once(base / "b", 170, 1, "mono");
+  const PipelineStats a = run_once(base / "a", 150, 5, "mono");
+  const PipelineStats b = run_once(base / "b", 150, 5, "mono");
   ASSERT_TRUE(a.tracker.initialized);
   EXPECT_GT(a.keyframes, 2U);
   for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv"}) {
