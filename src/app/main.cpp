@@ -7,6 +7,7 @@
 #include <iostream>
 
 #include "app/cli.h"
+#include "app/depth_maps.h"
 #include "app/stop_signal.h"
 #include "app/summary.h"
 #include "core/config_io.h"
@@ -61,6 +62,10 @@ int main(int argc, char** argv) {
     return 0;
   }
 
+  // Depth maps of depth.backend: external, indexed once before anything starts.
+  auto depth_maps = app::open_depth_maps(config.depth);
+  if (!depth_maps.is_ok()) return fail(depth_maps.status());
+
   platform::LogDrain drain(platform::default_log(), stderr,
                            parse_level(config.telemetry.log_level));
   const platform::BoardThreads board =
@@ -103,7 +108,7 @@ int main(int argc, char** argv) {
     pipeline::PipelineConfig pc{config.pipeline, config.board,    config.telemetry,
                                 config.output,   config.tracking, config.map,
                                 config.depth,    config.backend,  info.intrinsics};
-    pipeline::Pipeline pipe(pc, camera, g_stop);
+    pipeline::Pipeline pipe(pc, camera, g_stop, depth_maps.value().get());
     Status s = pipe.init(args.output_dir);
     if (!s.is_ok()) {
       drain.stop();

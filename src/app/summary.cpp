@@ -152,6 +152,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
     << ", \"fused_observations\": " << m.fused_observations
     << ", \"view_observations\": " << m.view_observations << ", \"depth_valid\": " << m.depth_valid
+    << ", \"depth_missing\": " << m.depth_missing << ", \"depth_errors\": " << m.depth_errors
     << "},\n";
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
@@ -204,6 +205,10 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
      << st.map_points << " points";
   if (st.focal.estimated) os << "; focal " << std::setprecision(2) << st.focal.value << " px";
   os << "\n";
+  if (st.mapping.depth_missing > 0 || st.mapping.depth_errors > 0) {
+    os << "  keyframe depth (" << st.depth_backend << "): " << st.mapping.depth_missing
+       << " keyframes without input, " << st.mapping.depth_errors << " failed (see warnings)\n";
+  }
   if (info.accuracy.available) {
     const AccuracyReport& a = info.accuracy;
     os << "  ATE (" << a.alignment << ", " << a.pairs << " poses): rmse " << std::setprecision(4)

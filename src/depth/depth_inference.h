@@ -8,7 +8,8 @@
 /// - `rgbd`: the sensor's depth at the keypoints (metres);
 /// - `plane_sweep`: dense multi-view stereo over the keyframe and recent tracked frames,
 ///   sampled at the keypoints (depth in map units);
-/// - later: a learned model, or depth maps recorded offline.
+/// - `external`: depth maps read from files, one per frame (e.g. a learned model's output
+///   recorded offline), sampled at the keypoints (metres, or up to an unknown scale).
 /// A backend only sees this request; the keyframe-creation stage aligns the scale and turns
 /// local 3D points into map-points, so a new backend never touches the front end.
 
@@ -50,6 +51,7 @@ struct RecentView {
 
 /// The keyframe whose depth is wanted, and its neighbours.
 struct DepthRequest {
+  std::int64_t t_ns = 0;          ///< keyframe capture time, ns
   SE3d T_w_c = SE3d::Identity();  ///< keyframe camera-to-world
   geometry::Pinhole K;
   std::span<const features::Keypoint> keypoints;
@@ -76,6 +78,8 @@ struct DepthResult {
   /// views.size() columns, kNoSupport where the view did not agree. The new map-point is
   /// observed in all of them, not only in support_view.
   std::span<std::uint32_t> view_keypoint;
+  bool input_missing = false;  ///< the backend had no input for this keyframe (e.g. no depth
+                               ///< map near its time): no depth, counted apart from failures
 };
 
 /// No supporting view.

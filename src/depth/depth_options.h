@@ -12,8 +12,15 @@
 namespace mer::depth {
 
 /// Backends selectable in config.
-inline constexpr std::array<std::string_view, 4> kDepthBackends{"auto", "triangulation", "rgbd",
-                                                                "plane_sweep"};
+inline constexpr std::array<std::string_view, 5> kDepthBackends{"auto", "triangulation", "rgbd",
+                                                                "plane_sweep", "external"};
+
+/// File formats of the `external` backend's depth maps.
+inline constexpr std::array<std::string_view, 3> kExternalDepthFormats{"auto", "png16", "float32"};
+/// How the `external` backend's file names give a timestamp.
+inline constexpr std::array<std::string_view, 3> kExternalDepthTimeUnits{"auto", "s", "ns"};
+/// Units of the `external` backend's depth.
+inline constexpr std::array<std::string_view, 2> kExternalDepthScales{"unknown", "metric"};
 
 /// Options of the `triangulation` backend.
 struct TriangulationOptions {
@@ -69,6 +76,59 @@ struct RgbdDepthOptions {
   }
 };
 
+/// Options of the `external` backend: depth maps read from a folder, one per frame, named by
+/// capture time (e.g. a learned model's output recorded offline).
+struct ExternalDepthOptions {
+  std::string folder;              ///< folder of the depth maps (required by the backend)
+  std::string format = "auto";     ///< auto (by extension), png16, float32 (PFM)
+  std::string time_unit = "auto";  ///< file-name timestamps: auto, s, ns
+  double depth_scale = 5000.0;     ///< png16: stored units per depth unit (TUM: 5000 per m)
+  double max_time_diff_s = 0.02;   ///< largest keyframe-to-map time difference, s
+  std::string scale = "unknown";   ///< unknown (up to scale, aligned to the map) or metric
+  double confidence = 1.0;         ///< confidence given to every sampled depth
+  double min_depth = 0.0;          ///< closer readings are ignored (maps' unit)
+  double max_depth = 1.0e6;        ///< farther readings are ignored (maps' unit)
+  double max_depth_step = 0.03;    ///< relative step across 2x2 pixels: a depth edge (refused)
+
+  template <class V>
+  void visit(V& v) {
+    v.field("folder", folder,
+            "folder of depth maps, one per frame, named by capture time (<t>.png / <t>.pfm); "
+            "indexed once at start; required with depth.backend external");
+    v.field("format", format,
+            "auto (by extension: .png 16-bit, .pfm float), png16 (16-bit PNG, value / "
+            "depth_scale), float32 (single-channel PFM, 'Pf', either byte order)",
+            options::OneOf{kExternalDepthFormats});
+    v.field("time_unit", time_unit,
+            "file names are timestamps: s (decimal seconds, e.g. 1305031102.175304.png, as in "
+            "TUM), ns (integer nanoseconds, e.g. 1403636579763555584.png), auto (a name with a "
+            "decimal point is seconds, digits only are nanoseconds)",
+            options::OneOf{kExternalDepthTimeUnits});
+    v.field("depth_scale", depth_scale,
+            "png16: stored value per depth unit (TUM 5000 per metre, 1000 for millimetres)",
+            options::Range<double>{1e-6, 1e9});
+    v.field("max_time_diff_s", max_time_diff_s,
+            "a keyframe takes the map with the nearest timestamp within this, s; none: the "
+            "keyframe gets no depth (warned, counted in map.depth_missing)",
+            options::Range<double>{0.0, 10.0});
+    v.field("scale", scale,
+            "unknown: depth up to an unknown scale (a monocular network), aligned to the map "
+            "with the keyframe's 3D-2D matches; metric: metres (used as is in rgbd mode)",
+            options::OneOf{kExternalDepthScales});
+    v.field("confidence", confidence,
+            "confidence of every depth read from a map (depth.min_confidence gates new points)",
+            options::Range<double>{0.0, 1.0});
+    v.field("min_depth", min_depth, "closer readings are ignored, in the maps' unit",
+            options::Range<double>{0.0, 1e9});
+    v.field("max_depth", max_depth, "farther readings are ignored, in the maps' unit",
+            options::Range<double>{0.0, 1e9});
+    v.field("max_depth_step", max_depth_step,
+            "depth is interpolated over the keypoint's 2x2 map pixels; a relative depth step "
+            "among them above this marks a depth edge and the reading is refused",
+            options::Range<double>{0.0, 100.0});
+  }
+};
+
 /// Keyframe creation and depth inference.
 struct DepthOptions {
   std::string backend = "auto";    ///< auto: rgbd in rgbd mode, else triangulation
@@ -82,12 +142,13 @@ struct DepthOptions {
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;
+  ExternalDepthOptions external;
 
   template <class V>
   void visit(V& v) {
     v.field("backend", backend,
             "depth inference: auto (rgbd in rgbd mode, else triangulation), triangulation, "
-            "rgbd, plane_sweep",
+            "rgbd, plane_sweep, external (depth maps from files, depth.external)",
             options::OneOf{kDepthBackends});
     v.field("neighbours", neighbours, "neighbouring keyframes depth inference uses",
             options::Range<int>{1, 16});
@@ -116,6 +177,9 @@ struct DepthOptions {
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
     v.section("plane_sweep", plane_sweep,
               "dense plane-sweep stereo backend (keyframe against recent tracked frames)");
+    v.section("external", external,
+              "external backend: depth maps read from a folder (e.g. a learned model's output "
+              "recorded offline), sampled at the keypoints");
   }
 };
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 
+#include "depth/external_depth.h"
 #include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
 #include "depth/triangulation_depth.h"
@@ -22,12 +23,14 @@ constexpr double kDepthHintHighQuantile = 0.95;
 }  // namespace
 
 KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
-                                 std::vector<float> level_sigma2, double metric_depth_sigma_rel)
+                                 std::vector<float> level_sigma2, double metric_depth_sigma_rel,
+                                 DepthMapSource* depth_maps)
     : opts_(opts),
       mode_(std::move(mode)),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
-      metric_depth_sigma_rel_(metric_depth_sigma_rel) {}
+      metric_depth_sigma_rel_(metric_depth_sigma_rel),
+      depth_maps_(depth_maps) {}
 
 Status KeyframeBuilder::init() {
   std::string backend = opts_.backend;
@@ -44,6 +47,14 @@ Status KeyframeBuilder::init() {
       return invalid_argument("section 'depth.plane_sweep.stereo': " + s.message());
     }
     backend_ = std::move(ps);
+  } else if (backend == "external") {
+    if (depth_maps_ == nullptr) {
+      return invalid_argument(
+          "key 'depth.backend': 'external' needs depth maps (key 'depth.external.folder')");
+    }
+    backend_ = std::make_unique<ExternalDepth>(opts_.external, *depth_maps_);
+    fit_depth_ = metric_depth_sigma_rel_ > 0.0 && backend_->scale() == DepthScale::kMetric &&
+                 mode_ == "rgbd";
   } else {
     backend_ = std::make_unique<TriangulationDepth>(opts_.triangulation);
   }
@@ -293,6 +304,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   }
   rep.neighbours = static_cast<int>(views_.size());
   DepthRequest req;
+  req.t_ns = job.t_ns;
   req.T_w_c = job.T_w_c;
   req.K = job.K;
   req.keypoints = kps;
@@ -336,8 +348,15 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   out.view_keypoint = std::span<std::uint32_t>(view_kp_.data(), n * views_.size());
   const Status ds = backend_->infer(req, out);
   if (!ds.is_ok()) {
-    MER_LOG_WARN("keyframe %llu: depth inference failed: %s",
-                 static_cast<unsigned long long>(job.seq), ds.message().c_str());
+    if (out.input_missing) {
+      ++totals_.depth_missing;
+      MER_LOG_WARN("keyframe %llu: no depth: %s", static_cast<unsigned long long>(job.seq),
+                   ds.message().c_str());
+    } else {
+      ++totals_.depth_errors;
+      MER_LOG_WARN("keyframe %llu: depth inference failed: %s",
+                   static_cast<unsigned long long>(job.seq), ds.message().c_str());
+    }
     std::fill_n(depth_.begin(), n, 0.0F);
     out.num_valid = 0;
   }

@@ -16,6 +16,7 @@
 
 #include "core/status.h"
 #include "depth/depth_inference.h"
+#include "depth/depth_map_source.h"
 #include "depth/depth_options.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
@@ -46,6 +47,8 @@ struct KeyframeBuildTotals {
   std::uint64_t fused_observations = 0;  ///< of these, found by projection (depth.fuse_keyframes)
   std::uint64_t view_observations = 0;   ///< of new points, beyond their first two views
   std::uint64_t depth_valid = 0;
+  std::uint64_t depth_missing = 0;  ///< keyframes the backend had no input for (no depth map)
+  std::uint64_t depth_errors = 0;   ///< keyframes whose depth inference failed otherwise
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -57,10 +60,14 @@ class KeyframeBuilder {
   /// `metric_depth_sigma_rel` > 0: with metric (sensor) depth, structure refinement also fits
   /// each observing keyframe's depth, with this sigma as a fraction of the depth at
   /// confidence 1 (the back end's 3D-3D edge sigma, so both weigh depth alike).
+  /// `depth_maps`: the maps of the `external` backend (must outlive the builder; may be null
+  /// for the other backends).
   KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
-                  std::vector<float> level_sigma2, double metric_depth_sigma_rel = 0.0);
+                  std::vector<float> level_sigma2, double metric_depth_sigma_rel = 0.0,
+                  DepthMapSource* depth_maps = nullptr);
 
-  /// Creates the backend; error when the option names a backend the mode cannot run.
+  /// Creates the backend; error when the option names a backend the mode cannot run, or
+  /// `external` without a depth map source.
   Status init();
 
   /// Creates one keyframe.
@@ -84,6 +91,7 @@ class KeyframeBuilder {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   double metric_depth_sigma_rel_;
+  DepthMapSource* depth_maps_;
   bool fit_depth_ = false;  // refinement fits metric keyframe depth
   std::unique_ptr<DepthInference> backend_;
   KeyframeBuildTotals totals_;

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "geometry/depth_sampling.h"
 #include "geometry/self_calibration.h"
 #include "geometry/two_view.h"
 #include "platform/clock.h"
@@ -42,26 +43,11 @@ double median_of(std::vector<double>& v) {
   return *mid;
 }
 
-/// Sensor depth at sub-pixel (x, y): bilinear over the 2x2 pixels around it. 0 (no reading)
-/// outside the image, where a pixel has no depth, or across a depth edge (the four depths
-/// differ by more than `max_step` relative): at an occlusion boundary, where corners are
-/// found, an interpolated or nearest depth belongs to neither surface.
+/// Sensor depth at sub-pixel (x, y), refused across depth edges (geometry::sample_depth).
 float sample_depth(const cv::Mat& depth, float x, float y, double max_step) {
   if (depth.empty()) return 0.0F;
-  const auto u0 = static_cast<int>(std::floor(x));
-  const auto v0 = static_cast<int>(std::floor(y));
-  if (u0 < 0 || v0 < 0 || u0 + 1 >= depth.cols || v0 + 1 >= depth.rows) return 0.0F;
-  const float d00 = depth.at<float>(v0, u0);
-  const float d01 = depth.at<float>(v0, u0 + 1);
-  const float d10 = depth.at<float>(v0 + 1, u0);
-  const float d11 = depth.at<float>(v0 + 1, u0 + 1);
-  const float lo = std::min({d00, d01, d10, d11});
-  const float hi = std::max({d00, d01, d10, d11});
-  if (!(lo > 0.0F) || !std::isfinite(hi)) return 0.0F;
-  if (hi - lo > static_cast<float>(max_step) * lo) return 0.0F;
-  const float a = x - static_cast<float>(u0);
-  const float b = y - static_cast<float>(v0);
-  return (1.0F - b) * ((1.0F - a) * d00 + a * d01) + b * ((1.0F - a) * d10 + a * d11);
+  return geometry::sample_depth({depth.ptr<float>(), depth.cols, depth.rows, depth.step1()}, x, y,
+                                max_step);
 }
 
 }  // namespace

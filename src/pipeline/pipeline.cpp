@@ -77,8 +77,8 @@ void consume_loop(platform::Notifier& wake, const std::atomic<bool>& upstream_do
 }  // namespace
 
 Pipeline::Pipeline(const PipelineConfig& config, hal::CameraSource& camera,
-                   const std::atomic<bool>& stop)
-    : config_(config), camera_(camera), stop_(stop) {}
+                   const std::atomic<bool>& stop, depth::DepthMapSource* depth_maps)
+    : config_(config), camera_(camera), stop_(stop), depth_maps_(depth_maps) {}
 
 Pipeline::~Pipeline() = default;
 
@@ -106,7 +106,7 @@ Status Pipeline::init(const std::string& output_dir) {
   if (Status t = tracker_->init(); !t.is_ok()) return t;
   builder_ = std::make_unique<depth::KeyframeBuilder>(
       config_.depth, config_.pipeline.mode, *map_, tracker_->level_sigma2(),
-      config_.backend.depth_edges == "off" ? 0.0 : config_.backend.depth_sigma_rel);
+      config_.backend.depth_edges == "off" ? 0.0 : config_.backend.depth_sigma_rel, depth_maps_);
   if (Status d = builder_->init(); !d.is_ok()) return d;
   ba_ = std::make_unique<backend::LocalBundleAdjuster>(
       config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,

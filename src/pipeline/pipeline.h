@@ -22,6 +22,7 @@
 
 #include "backend/local_ba.h"
 #include "core/status.h"
+#include "depth/depth_map_source.h"
 #include "depth/depth_options.h"
 #include "depth/keyframe_builder.h"
 #include "frontend/tracker.h"
@@ -139,7 +140,10 @@ struct PipelineStats {
 class Pipeline {
  public:
   /// `camera` must be opened; `stop` is polled (e.g. set from a SIGINT handler).
-  Pipeline(const PipelineConfig& config, hal::CameraSource& camera, const std::atomic<bool>& stop);
+  /// `depth_maps`: the maps of `depth.backend: external` (must outlive the pipeline; null
+  /// for the other backends).
+  Pipeline(const PipelineConfig& config, hal::CameraSource& camera, const std::atomic<bool>& stop,
+           depth::DepthMapSource* depth_maps = nullptr);
   ~Pipeline();
 
   /// Allocates every stage and opens the output files in `output_dir` (may be empty).
@@ -165,6 +169,7 @@ class Pipeline {
   PipelineConfig config_;
   hal::CameraSource& camera_;
   const std::atomic<bool>& stop_;
+  depth::DepthMapSource* depth_maps_;
   void queue_or_build_keyframe(const hal::Frame& frame, const frontend::TrackingResult& r);
   void count_result(const frontend::TrackingResult& r);
 

@@ -104,7 +104,7 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
   std::vector<float> conf(n);
   std::vector<std::uint32_t> sv(n);
   std::vector<std::uint32_t> sk(n);
-  DepthResult out{depth, conf, sv, sk, 0, {}};
+  DepthResult out{depth, conf, sv, sk, 0, {}, false};
   TriangulationDepth tri(TriangulationOptions{});
   ASSERT_TRUE(tri.infer(req, out).is_ok());
   // With 1 px keypoint noise at f = 457 px, the relative depth error of a point seen under
@@ -156,9 +156,9 @@ TEST_F(TriangulationDepthTest, ReportsEveryAgreeingViewKeypoint) {
   TriangulationOptions opts;
   opts.min_views = 3;
   TriangulationDepth tri(opts);
-  DepthResult small{depth, conf, sv, sk, 0, std::span<std::uint32_t>(vk.data(), n)};
+  DepthResult small{depth, conf, sv, sk, 0, std::span<std::uint32_t>(vk.data(), n), false};
   EXPECT_FALSE(tri.infer(req, small).is_ok()) << "a buffer smaller than keypoints x views";
-  DepthResult out{depth, conf, sv, sk, 0, vk};
+  DepthResult out{depth, conf, sv, sk, 0, vk, false};
   ASSERT_TRUE(tri.infer(req, out).is_ok());
   ASSERT_GT(out.num_valid, 100);
   int listed = 0;
@@ -210,7 +210,7 @@ TEST(RgbdDepth, PassesSensorDepthWithinRange) {
   std::vector<float> conf(4);
   std::vector<std::uint32_t> sv(4);
   std::vector<std::uint32_t> sk(4);
-  DepthResult out{depth, conf, sv, sk, 0, {}};
+  DepthResult out{depth, conf, sv, sk, 0, {}, false};
   RgbdDepth rgbd(RgbdDepthOptions{});
   ASSERT_TRUE(rgbd.infer(req, out).is_ok());
   EXPECT_EQ(out.num_valid, 2);
