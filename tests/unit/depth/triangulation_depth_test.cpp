@@ -49,6 +49,23 @@ class TriangulationDepthTest : public ::testing::Test {
     v.ids.assign(v.kps.size(), 0xFFFFFFFFu);
     return v;
   }
+  // The request for keyframe `key` with `others` as its views (filled into `views`).
+  DepthRequest request(const View& key, const std::vector<View>& others,
+                       std::vector<DepthView>& views) const {
+    views.clear();
+    for (std::size_t i = 0; i < others.size(); ++i) {
+      views.push_back(DepthView{static_cast<std::uint32_t>(i), others[i].T_w_c, others[i].kps,
+                                others[i].descs, others[i].ids, &others[i].gray});
+    }
+    DepthRequest req;
+    req.T_w_c = key.T_w_c;
+    req.K = K_;
+    req.keypoints = key.kps;
+    req.descriptors = key.descs;
+    req.point_ids = key.ids;
+    req.level_sigma2 = sigma2_;
+    return req;
+  }
   // Relative depth errors of the keypoints that got a depth (interior pixels only: a corner
   // on an occlusion boundary has no single true depth).
   std::vector<double> errors(const View& key, const DepthResult& out, int* boundary) const {
@@ -86,17 +103,7 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
   const View key = render(2.0);
   std::vector<View> others = {render(1.4), render(1.6), render(1.8)};
   std::vector<DepthView> views;
-  for (std::size_t i = 0; i < others.size(); ++i) {
-    views.push_back(DepthView{static_cast<std::uint32_t>(i), others[i].T_w_c, others[i].kps,
-                              others[i].descs, others[i].ids, &others[i].gray});
-  }
-  DepthRequest req;
-  req.T_w_c = key.T_w_c;
-  req.K = K_;
-  req.keypoints = key.kps;
-  req.descriptors = key.descs;
-  req.point_ids = key.ids;
-  req.level_sigma2 = sigma2_;
+  DepthRequest req = request(key, others, views);
   req.gray = &key.gray;
   req.views = views;
   const std::size_t n = key.kps.size();
@@ -134,17 +141,7 @@ TEST_F(TriangulationDepthTest, ReportsEveryAgreeingViewKeypoint) {
   const View key = render(2.0);
   std::vector<View> others = {render(1.4), render(1.6), render(1.8)};
   std::vector<DepthView> views;
-  for (std::size_t i = 0; i < others.size(); ++i) {
-    views.push_back(DepthView{static_cast<std::uint32_t>(i), others[i].T_w_c, others[i].kps,
-                              others[i].descs, others[i].ids, &others[i].gray});
-  }
-  DepthRequest req;
-  req.T_w_c = key.T_w_c;
-  req.K = K_;
-  req.keypoints = key.kps;
-  req.descriptors = key.descs;
-  req.point_ids = key.ids;
-  req.level_sigma2 = sigma2_;
+  DepthRequest req = request(key, others, views);
   req.views = views;
   const std::size_t n = key.kps.size();
   const std::size_t nv = views.size();
