@@ -5,6 +5,7 @@
 /// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
 
 #include "backend/local_ba.h"
+#include "backend/map_culling.h"
 #include "core/options.h"
 #include "depth/depth_options.h"
 #include "frontend/tracking_options.h"
@@ -22,6 +23,7 @@ struct SlamConfig {
   map::MapOptions map;
   depth::DepthOptions depth;
   backend::LocalBaOptions backend;
+  backend::CullingOptions culling;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;
@@ -34,6 +36,7 @@ struct SlamConfig {
     v.section("map", map, "map capacities and 3D cells");
     v.section("depth", depth, "keyframe creation and depth inference");
     v.section("backend", backend, "local bundle adjustment of the covisibility window");
+    v.section("culling", culling, "removal of redundant keyframes and bad map points");
     v.section("board", board, "thread placement and latency budgets");
     v.section("telemetry", telemetry, "latency and allocation accounting");
     v.section("output", output, "output files");

@@ -153,7 +153,19 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"fused_observations\": " << m.fused_observations
     << ", \"view_observations\": " << m.view_observations << ", \"depth_valid\": " << m.depth_valid
     << ", \"depth_missing\": " << m.depth_missing << ", \"depth_errors\": " << m.depth_errors
-    << "},\n";
+    << ", \"live_keyframes\": " << st.map.live_keyframes
+    << ", \"live_points\": " << st.map.live_points
+    << ", \"keyframe_slots_used\": " << st.map.keyframe_slots_used
+    << ", \"point_slots_used\": " << st.map.point_slots_used
+    << ", \"culled_keyframes\": " << st.culling.culled_keyframes
+    << ", \"culled_points\": " << st.culling.culled_points
+    << ", \"culled_keyframes_at_capacity\": " << st.culling.capacity_keyframes
+    << ", \"culled_points_at_capacity\": " << st.culling.capacity_points
+    << ", \"bad_points\": " << st.map.bad_points
+    << ", \"reused_keyframe_slots\": " << st.map.reused_keyframe_slots
+    << ", \"reused_point_slots\": " << st.map.reused_point_slots << ", \"culling_mean_ms\": "
+    << num(st.culling.runs ? st.culling.total_ms / static_cast<double>(st.culling.runs) : 0.0)
+    << ", \"culling_max_ms\": " << num(st.culling.max_ms) << "},\n";
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
     << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers

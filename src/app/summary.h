@@ -3,9 +3,12 @@
 /// summary.json (stable key names; later features add keys, never rename them) and the
 /// human-readable summary printed at the end of a run.
 ///
-/// Keys: frames_in, frames_processed, frames_dropped, frames_lost, keyframes, map_points,
-/// wall_time_s, latency_ms {stage: {p50, p90, p99, max, mean, count, budget}},
-/// budget_overruns {stage: n}, allocs_per_frame {thread: n}, plus run details
+/// Keys: frames_in, frames_processed, frames_dropped, frames_lost, keyframes, map_points
+/// (alive at the end), map {..., live_keyframes, live_points, keyframe_slots_used,
+/// point_slots_used, culled_keyframes, culled_points, culled_keyframes_at_capacity,
+/// culled_points_at_capacity, bad_points, reused_keyframe_slots, reused_point_slots,
+/// culling_mean_ms, culling_max_ms}, wall_time_s, latency_ms {stage: {p50, p90, p99, max, mean,
+/// count, budget}}, budget_overruns {stage: n}, allocs_per_frame {thread: n}, plus run details
 /// (input, mode, pose_source, end_reason, pool_exhausted, output_overflows,
 /// source_counters {skipped, error_frames, seq_gaps, restarts, damage}, threads, ...).
 

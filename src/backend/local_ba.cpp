@@ -119,7 +119,9 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
 LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations) {
   std::vector<map::KeyframeId> window;
   const map::KeyframeId n = map_.num_keyframes();
-  for (map::KeyframeId id = 0; id < n; ++id) window.push_back(id);
+  for (map::KeyframeId id = 0; id < n; ++id) {
+    if (map_.keyframe_is_live(id)) window.push_back(id);
+  }
   return optimize(window, K, max_iterations, false);
 }
 
@@ -176,10 +178,13 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     if (rep.fixed_keyframes >= opts_.max_fixed_keyframes) break;
     if (load_pose(id, true)) ++rep.fixed_keyframes;
   }
-  // Gauge: without a fixed keyframe, hold the oldest window keyframe.
+  // Gauge: without a fixed keyframe, hold the oldest window keyframe (by frame sequence:
+  // slots are reused, so ids are not in time order).
   if (rep.fixed_keyframes == 0) {
     map::KeyframeId oldest = window.front();
-    for (const map::KeyframeId id : window) oldest = std::min(oldest, id);
+    for (const map::KeyframeId id : window) {
+      if (poses.count(id) != 0 && map_.keyframe_seq(id) < map_.keyframe_seq(oldest)) oldest = id;
+    }
     poses[oldest].fixed = true;
   }
 

@@ -86,7 +86,7 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
   neighbour_ids_.clear();
   std::vector<std::pair<std::uint32_t, std::uint32_t>> counts;  // (kf, count), small
   for (int i = 0; i < job.num_keypoints; ++i) {
-    const std::uint32_t p = job.point_ids[static_cast<std::size_t>(i)];
+    const std::uint32_t p = ids_[static_cast<std::size_t>(i)];
     if (p == map::kNoId || map_.point_is_bad(p)) continue;
     const std::size_t no = map_.point_observations(p, obs_);
     for (std::size_t o = 0; o < no; ++o) {
@@ -102,11 +102,11 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
   }
   std::stable_sort(counts.begin(), counts.end(),
                    [](const auto& a, const auto& b) { return a.second > b.second; });
-  const std::uint32_t nk = map_.num_keyframes();
-  if (nk > 0) neighbour_ids_.push_back(nk - 1);
+  const std::uint32_t newest = map_.newest_keyframe();
+  if (newest != map::kNoId) neighbour_ids_.push_back(newest);
   for (const auto& c : counts) {
     if (static_cast<int>(neighbour_ids_.size()) >= opts_.neighbours) break;
-    if (c.first != nk - 1) neighbour_ids_.push_back(c.first);
+    if (c.first != newest) neighbour_ids_.push_back(c.first);
   }
 }
 
@@ -116,10 +116,10 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   // that tracking missed get their observation here instead of a duplicate by triangulation,
   // so tracks grow longer and refinement / BA see wider baselines.
   const auto n = static_cast<std::size_t>(job.num_keypoints);
-  if (opts_.fuse_keyframes <= 0 || n == 0 || map_.num_keyframes() == 0) return 0;
+  if (opts_.fuse_keyframes <= 0 || n == 0 || map_.newest_keyframe() == map::kNoId) return 0;
   fuse_kfs_.assign(neighbour_ids_.begin(), neighbour_ids_.end());
   std::vector<map::CovisibleKeyframe> covis(static_cast<std::size_t>(opts_.fuse_keyframes));
-  const std::size_t nc = map_.covisible_keyframes(map_.num_keyframes() - 1, covis);
+  const std::size_t nc = map_.covisible_keyframes(map_.newest_keyframe(), covis);
   for (std::size_t i = 0; i < nc; ++i) {
     if (std::find(fuse_kfs_.begin(), fuse_kfs_.end(), covis[i].id) == fuse_kfs_.end()) {
       fuse_kfs_.push_back(covis[i].id);
@@ -282,6 +282,12 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   const std::span<const features::Keypoint> kps(job.keypoints.data(), n);
   const std::span<const features::Descriptor> descs(job.descriptors.data(), n);
   std::copy_n(job.point_ids.begin(), n, ids_.begin());
+  // A tracked point culled since (its slot possibly reused by another point) is not tracked.
+  for (std::size_t i = 0; i < n && job.point_gens.size() >= n; ++i) {
+    if (ids_[i] != map::kNoId && map_.point_generation(ids_[i]) != job.point_gens[i]) {
+      ids_[i] = map::kNoId;
+    }
+  }
   const std::span<const std::uint32_t> ids(ids_.data(), n);
 
   // 1. Neighbours, projection of their points, and depth inference.

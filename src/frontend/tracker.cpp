@@ -67,7 +67,9 @@ Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pin
   focal_.fixed = !focal_auto;
 }
 
-Tracker::~Tracker() = default;
+Tracker::~Tracker() {
+  map_.release_reader(map_reader_);
+}
 
 Status Tracker::init() {
   if (opts_.scale_features_with_area) {
@@ -85,6 +87,11 @@ Status Tracker::init() {
       features::make_extractor(opts_.extractor, width_, height_);
   if (!ex.is_ok()) return ex.status();
   extractor_ = std::move(ex.value());
+  if (map_reader_ < 0) {
+    Result<int> reader = map_.register_reader();
+    if (!reader.is_ok()) return reader.status();
+    map_reader_ = reader.value();
+  }
   const int max_kp = max_keypoints();
   if (max_kp > map_.options().max_keypoints_per_keyframe) {
     return invalid_argument("key 'tracking.extractor.num_features': " + std::to_string(max_kp) +
@@ -107,6 +114,8 @@ Status Tracker::init() {
   cand_normal_.assign(nq, Eigen::Vector3f::Zero());
   cand_max_dist_.assign(nq, 0.0F);
   cand_kf_.assign(nq, 0);
+  cand_gen_.assign(nq, map::kNoGeneration);
+  cand_in_view_.assign(nq, 0);
   cand_match_.assign(nq, kNoMatch);
   kp_cand_.assign(nk, kNoMatch);
   kp_dist_.assign(nk, 0);
@@ -118,6 +127,7 @@ Status Tracker::init() {
   inlier_x_.assign(nk, 0.0F);
   inlier_y_.assign(nk, 0.0F);
   kp_point_.assign(nk, map::kNoId);
+  kp_point_gen_.assign(nk, map::kNoGeneration);
   recent_.assign(static_cast<std::size_t>(opts_.temporal_frames), KeyframeHistogram{});
   qt_keyframes_.reserve(kMaxRecentKeyframes);
   depth_scratch_.reserve(std::max(nk, static_cast<std::size_t>(opts_.focal.max_frames) + 1024));
@@ -189,18 +199,25 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
     cand_normal_[c] = pv.normal;
     cand_max_dist_[c] = pv.max_distance;
     cand_kf_[c] = pv.ref_keyframe;
+    cand_gen_[c] = pv.generation;
+    cand_in_view_[c] = 0;
     cand_match_[c] = kNoMatch;
     return true;
   };
 
   // Q_T: points of the keyframes tracked in the last B frames (and the newest keyframe).
+  // Keyframe ids kept from earlier frames may have been removed (skipped) or their slot
+  // reused by a newer keyframe (whose points are as good a query).
   qt_keyframes_.clear();
-  const std::uint32_t nk = map_.num_keyframes();
-  if (nk > 0) qt_keyframes_.push_back(nk - 1);
+  const map::KeyframeId newest = map_.newest_keyframe();
+  if (newest != map::kNoId) qt_keyframes_.push_back(newest);
   for (const KeyframeHistogram& h : recent_) {
     for (int i = 0; i < h.size(); ++i) {
       const std::uint32_t kf = h.keyframe(i);
-      if (kf >= nk || static_cast<int>(qt_keyframes_.size()) >= kMaxRecentKeyframes) continue;
+      if (static_cast<int>(qt_keyframes_.size()) >= kMaxRecentKeyframes ||
+          !map_.keyframe_is_live(kf)) {
+        continue;
+      }
       if (std::find(qt_keyframes_.begin(), qt_keyframes_.end(), kf) == qt_keyframes_.end()) {
         qt_keyframes_.push_back(kf);
       }
@@ -268,6 +285,7 @@ int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) 
   for (int c = 0; c < num_cand_; ++c) {
     const auto ci = static_cast<std::size_t>(c);
     cand_match_[ci] = kNoMatch;
+    cand_in_view_[ci] = 0;
     const Eigen::Vector3d p_c = T_c_w * cand_p_w_[ci];
     if (p_c.z() <= 0.0) continue;
     const Eigen::Vector2d uv = K_.project(p_c);
@@ -279,6 +297,7 @@ int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) 
         ray.dot(nrm.cast<double>()) < opts_.match.min_view_cos * dist * nrm.norm()) {
       continue;
     }
+    cand_in_view_[ci] = 1;
     int pred_level = -1;
     if (cand_max_dist_[ci] > 0.0F && dist > 0.0) {
       pred_level =
@@ -391,6 +410,13 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
   r.num_matches = m;
   r.num_inliers = inliers;
 
+  // Culling statistics: every candidate the last search projected into the image was
+  // visible; the inliers below were found.
+  for (int c = 0; c < num_cand_; ++c) {
+    if (cand_in_view_[static_cast<std::size_t>(c)] != 0) {
+      map_.note_visible(cand_id_[static_cast<std::size_t>(c)]);
+    }
+  }
   // Tracked points: per-keypoint association, inlier positions, histogram, median depth.
   std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
   histogram_.clear();
@@ -401,6 +427,8 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
     const auto c = static_cast<std::size_t>(corr_kp_[i]);
     const auto k = static_cast<std::size_t>(cand_match_[c]);
     kp_point_[k] = cand_id_[c];
+    kp_point_gen_[k] = cand_gen_[c];
+    map_.note_found(cand_id_[c]);
     inlier_x_[static_cast<std::size_t>(ni)] = static_cast<float>(corr_uv_[i].x());
     inlier_y_[static_cast<std::size_t>(ni)] = static_cast<float>(corr_uv_[i].y());
     ++ni;
@@ -509,6 +537,11 @@ void Tracker::keyframe_not_queued() {
   force_keyframe_ = true;
 }
 
+void Tracker::stop_reading() {
+  map_.release_reader(map_reader_);
+  map_reader_ = -1;
+}
+
 void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const {
   job.seq = frame.seq;
   job.t_ns = frame.t_ns;
@@ -520,6 +553,7 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   std::copy_n(kps_.begin(), n, job.keypoints.begin());
   std::copy_n(descs_.begin(), n, job.descriptors.begin());
   std::copy_n(kp_point_.begin(), n, job.point_ids.begin());
+  std::copy_n(kp_point_gen_.begin(), n, job.point_gens.begin());
   job.has_sensor_depth = !frame.depth.empty();
   for (int i = 0; i < n && job.has_sensor_depth; ++i) {
     const auto ui = static_cast<std::size_t>(i);
@@ -713,6 +747,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
     (void)map_.add_observation(p.value(), kf1.value(), k);
     map_.update_point(p.value());
     kp_point_[k] = p.value();
+    kp_point_gen_[k] = map_.point_generation(p.value());
     histogram_.add(kf0.value());
     inlier_x_[static_cast<std::size_t>(ni)] = kps_[k].x;
     inlier_y_[static_cast<std::size_t>(ni)] = kps_[k].y;
@@ -799,6 +834,7 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
     if (!p.is_ok()) break;
     map_.update_point(p.value());
     kp_point_[i] = p.value();
+    kp_point_gen_[i] = map_.point_generation(p.value());
     histogram_.add(kf0.value());
     depth_scratch_.push_back(depth[i]);
     ++ni;
@@ -831,6 +867,9 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
 // ---- Entry point -------------------------------------------------------------------------
 
 TrackingResult Tracker::spin_once(const hal::Frame& frame) {
+  // Quiescent point: nothing read from the map in earlier frames is held past here except
+  // ids that are re-checked (map.h, slot reclamation).
+  map_.reader_quiescent(map_reader_);
   TrackingResult r;
   r.seq = frame.seq;
   r.t_ns = frame.t_ns;

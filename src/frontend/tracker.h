@@ -13,9 +13,12 @@
 /// Before a map exists it initializes: two-view reconstruction (monocular) or one frame
 /// with depth (RGB-D). Lost frames are reported; relocalization is not part of tracking.
 ///
-/// Threading: reads the map lock-free; the only map writes it makes are at initialization,
-/// before any keyframe job has been queued (the map has no other writer yet). After init,
-/// spin_once() does not allocate.
+/// Threading: reads the map lock-free as a registered reader (map.h, slot reclamation): each
+/// spin_once() starts with a quiescent point, and the ids it keeps across frames are either
+/// re-checked (recent keyframes) or handed on with their generation (keyframe jobs). Its map
+/// writes are at initialization, before any keyframe job has been queued (the map has no
+/// other writer yet), and the per-point visible / found statistics (relaxed atomic adds).
+/// After init, spin_once() does not allocate.
 
 #include <cstdint>
 #include <limits>
@@ -82,6 +85,9 @@ class Tracker {
   void fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const;
   /// The keyframe decided last could not be queued (no free job): decide again next frame.
   void keyframe_not_queued();
+  /// The tracking thread is done with the map (end of its loop): its reader registration is
+  /// released, so slots freed by the keyframes still queued can be reused. No spin_once after.
+  void stop_reading();
 
   /// Keypoint variance per pyramid level (for depth inference).
   std::vector<float> level_sigma2() const;
@@ -121,6 +127,7 @@ class Tracker {
 
   TrackingOptions opts_;
   map::Map& map_;
+  int map_reader_ = -1;  // registration for slot reclamation
   geometry::Pinhole K_;
   int width_;
   int height_;
@@ -150,7 +157,9 @@ class Tracker {
   std::vector<Eigen::Vector3f> cand_normal_;
   std::vector<float> cand_max_dist_;
   std::vector<std::uint32_t> cand_kf_;
-  std::vector<std::int32_t> cand_match_;  // keypoint index or -1
+  std::vector<std::uint32_t> cand_gen_;     // generation of the candidate point
+  std::vector<std::uint8_t> cand_in_view_;  // projected into the image in the last search
+  std::vector<std::int32_t> cand_match_;    // keypoint index or -1
   int num_cand_ = 0;
   std::vector<std::int32_t> kp_cand_;  // per keypoint: candidate index or -1
   std::vector<std::int32_t> kp_dist_;  // per keypoint: descriptor distance of its match
@@ -161,7 +170,8 @@ class Tracker {
   std::vector<std::uint8_t> corr_mask_;
   std::vector<float> inlier_x_;
   std::vector<float> inlier_y_;
-  std::vector<std::uint32_t> kp_point_;  // per keypoint: tracked (inlier) map-point or kNoId
+  std::vector<std::uint32_t> kp_point_;      // per keypoint: tracked (inlier) map-point or kNoId
+  std::vector<std::uint32_t> kp_point_gen_;  // its generation
   KeyframeHistogram histogram_;
   std::vector<KeyframeHistogram> recent_;  // histograms of the last B localized frames
   std::size_t recent_next_ = 0;

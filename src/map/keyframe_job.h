@@ -26,9 +26,12 @@ struct KeyframeJob {
   std::vector<features::Keypoint> keypoints;  ///< capacity = max keypoints
   std::vector<features::Descriptor> descriptors;  ///< one per keypoint
   std::vector<std::uint32_t> point_ids;           ///< tracked map point per keypoint, or kNoId
-  std::vector<float> sensor_depth;                ///< sensor depth at keypoints (m, 0 = none)
-  bool has_sensor_depth = false;                  ///< sensor_depth is filled (RGB-D)
-  cv::Mat gray;                                   ///< copy of the image (dense backends)
+  /// Generation of each tracked point when it was tracked (map.h: slots are reused, so
+  /// keyframe creation drops an id whose slot has a newer occupant by now).
+  std::vector<std::uint32_t> point_gens;
+  std::vector<float> sensor_depth;  ///< sensor depth at keypoints (m, 0 = none)
+  bool has_sensor_depth = false;    ///< sensor_depth is filled (RGB-D)
+  cv::Mat gray;                     ///< copy of the image (dense backends)
   /// Recent tracked frames before this one (dense multi-view backends), newest first:
   /// `num_recent` valid entries of `recent_gray` / `recent_T_w_c`.
   std::vector<cv::Mat> recent_gray;
@@ -41,6 +44,7 @@ struct KeyframeJob {
     keypoints.resize(n);
     descriptors.resize(n);
     point_ids.resize(n);
+    point_gens.resize(n);
     sensor_depth.resize(n);
     gray.create(height, width, CV_8UC1);
   }

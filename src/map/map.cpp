@@ -8,13 +8,13 @@
 namespace mer::map {
 namespace {
 
-constexpr std::uint32_t kWeightMask = 0xFFFFFFFFu;
+constexpr std::uint32_t kLow32Mask = 0xFFFFFFFFu;
 
 std::uint64_t pack_edge(const CovisibleKeyframe& e) noexcept {
   return (static_cast<std::uint64_t>(e.id) << 32U) | e.weight;
 }
 CovisibleKeyframe unpack_edge(std::uint64_t w) noexcept {
-  return {static_cast<KeyframeId>(w >> 32U), static_cast<std::uint32_t>(w & kWeightMask)};
+  return {static_cast<KeyframeId>(w >> 32U), static_cast<std::uint32_t>(w & kLow32Mask)};
 }
 /// Edge order: weight descending, then id ascending (deterministic).
 bool stronger(const CovisibleKeyframe& a, const CovisibleKeyframe& b) noexcept {
@@ -42,10 +42,16 @@ Map::Map(const MapOptions& opts)
       kf_depth_conf_(std::make_unique<std::atomic<float>[]>(std::size_t{max_kf_} * max_kp_)),
       covis_(std::make_unique<std::atomic<std::uint64_t>[]>(std::size_t{max_kf_} * max_cov_)),
       points_(std::make_unique<PointSlot[]>(max_pts_)),
+      pt_visible_(std::make_unique<std::atomic<std::uint32_t>[]>(max_pts_)),
+      pt_found_(std::make_unique<std::atomic<std::uint32_t>[]>(max_pts_)),
       grid_(opts_.cell_size, as_u32(opts_.cell_table_size), as_u32(opts_.points_per_cell)),
       obs_(std::make_unique<Observation[]>(std::size_t{max_pts_} * max_obs_)),
       obs_count_(std::make_unique<std::uint8_t[]>(max_pts_)),
       point_cell_(std::make_unique<CellKey[]>(max_pts_)),
+      kf_serial_(std::make_unique<std::uint64_t[]>(max_kf_)),
+      pt_serial_(std::make_unique<std::uint64_t[]>(max_pts_)),
+      kf_retired_(max_kf_),
+      pt_retired_(max_pts_),
       covis_weight_(std::make_unique<std::uint32_t[]>(max_kf_)),
       covis_touched_(std::make_unique<KeyframeId[]>(max_kf_)),
       covis_sorted_(std::make_unique<CovisibleKeyframe[]>(max_kf_)),
@@ -59,13 +65,53 @@ Map::Map(const MapOptions& opts)
 
 // ---- writer ------------------------------------------------------------------------------
 
+bool Map::live_keyframe(KeyframeId kf) const noexcept {
+  return kf < max_kf_ && is_live(kfs_[kf].state.load(std::memory_order_acquire));
+}
+
 bool Map::valid_keypoint(KeyframeId kf, std::uint32_t kp) const noexcept {
-  return kf < num_keyframes() && kp < kfs_[kf].num_keypoints;
+  return live_keyframe(kf) && kp < kfs_[kf].num_keypoints;
+}
+
+bool Map::own_keyframe(KeyframeId kf) const noexcept {
+  return kf < max_kf_ && is_live(load_own(kfs_[kf].state));
 }
 
 bool Map::own_point(PointId p) const noexcept {
-  return p < num_points_.load(std::memory_order_relaxed) &&
-         points_[p].bad.load(std::memory_order_relaxed) == 0U;
+  return p < max_pts_ && is_live(load_own(points_[p].state));
+}
+
+KeyframeId Map::own_ref_keyframe(PointId p) const noexcept {
+  return static_cast<KeyframeId>(load_own(points_[p].words[kPointRef]) & kLow32Mask);
+}
+
+std::uint32_t Map::own_ref_keypoint(PointId p) const noexcept {
+  return static_cast<std::uint32_t>(load_own(points_[p].words[kPointRef]) >> 32U);
+}
+
+std::uint64_t Map::retire_epoch() noexcept {
+  epoch_own_ += 1U;
+  epoch_.store(epoch_own_, std::memory_order_release);
+  return epoch_own_;
+}
+
+bool Map::readers_passed(std::uint64_t epoch) const noexcept {
+  for (const ReaderSlot& r : readers_) {
+    const std::uint64_t a = r.announced.load(std::memory_order_acquire);
+    if (a != kReaderUnused && a < epoch) return false;
+  }
+  return true;
+}
+
+std::uint32_t Map::take_slot(std::atomic<std::uint32_t>& high_water, std::uint32_t capacity,
+                             RetireQueue& retired, std::uint64_t& reused) noexcept {
+  const std::uint32_t used = high_water.load(std::memory_order_relaxed);
+  if (used < capacity) return used;  // never-used slots first (published by the caller)
+  if (retired.size == 0U || !readers_passed(retired.front().epoch)) return kNoId;
+  const std::uint32_t id = retired.front().id;
+  retired.pop();
+  ++reused;
+  return id;
 }
 
 SE3d Map::decode_pose(const std::uint64_t (&w)[kPoseWords]) noexcept {
@@ -84,6 +130,8 @@ void Map::decode_point(const std::uint64_t (&w)[kPointWords], PointView& out) no
                 low_float(w[kPointNormalZMin])};
   out.min_distance = high_float(w[kPointNormalZMin]);
   out.max_distance = low_float(w[kPointMax]);
+  out.ref_keyframe = static_cast<KeyframeId>(w[kPointRef] & kLow32Mask);
+  out.ref_keypoint = static_cast<std::uint32_t>(w[kPointRef] >> 32U);
 }
 
 SE3d Map::own_pose(KeyframeId kf) const noexcept {
@@ -133,23 +181,32 @@ void Map::write_shape(PointId p, const features::Descriptor& d, const Eigen::Vec
   s.lock.write_end();
 }
 
+void Map::write_ref(PointId p, KeyframeId kf, std::uint32_t kp) noexcept {
+  PointSlot& s = points_[p];
+  s.lock.write_begin();
+  store_payload(s.words[kPointRef], (static_cast<std::uint64_t>(kp) << 32U) | kf);
+  s.lock.write_end();
+}
+
+void Map::write_point_state(PointId p, std::uint32_t state) noexcept {
+  PointSlot& s = points_[p];
+  s.lock.write_begin();
+  store_payload(s.state, state);
+  s.lock.write_end();
+}
+
 void Map::shape_from_ref(PointId p, const Eigen::Vector3d& p_w, Eigen::Vector3d& normal,
                          float& min_d, float& max_d) const noexcept {
-  const PointSlot& s = points_[p];
-  const Eigen::Vector3d ray = p_w - own_pose(s.ref_kf).translation();
+  const KeyframeId ref_kf = own_ref_keyframe(p);
+  const Eigen::Vector3d ray = p_w - own_pose(ref_kf).translation();
   const double dist = ray.norm();
-  const float level_scale = kf_keypoints_[kp_index(s.ref_kf, s.ref_kp)].scale;
+  const float level_scale = kf_keypoints_[kp_index(ref_kf, own_ref_keypoint(p))].scale;
   max_d = static_cast<float>(dist * static_cast<double>(level_scale));
   min_d = static_cast<float>(static_cast<double>(max_d) / opts_.distance_scale_range);
   if (normal.squaredNorm() == 0.0 && dist > 0.0) normal = ray / dist;
 }
 
 Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
-  const std::uint32_t id = num_keyframes_.load(std::memory_order_relaxed);
-  if (id >= max_kf_) {
-    return runtime_error("map full: " + std::to_string(max_kf_) +
-                         " keyframes (raise map.max_keyframes)");
-  }
   const std::size_t n = in.keypoints.size();
   if (n > max_kp_) {
     return invalid_argument(
@@ -164,7 +221,14 @@ Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
                             std::to_string(in.depth_confidence.size()) + " confidences");
   }
   if (!in.T_w_c.matrix().allFinite()) return invalid_argument("keyframe: non-finite pose");
+  const std::uint32_t id = take_slot(num_keyframes_, max_kf_, kf_retired_, reused_kf_slots_);
+  if (id == kNoId) {
+    return runtime_error("map full: " + std::to_string(max_kf_) + " keyframes (" +
+                         std::to_string(kf_retired_.size) +
+                         " freed slots wait for a reader; raise map.max_keyframes)");
+  }
 
+  // The slot is not live: readers do not touch its plain memory until the state publishes it.
   KeyframeSlot& s = kfs_[id];
   s.seq = in.seq;
   s.t_ns = in.t_ns;
@@ -179,18 +243,19 @@ Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
                                    std::memory_order_relaxed);
   }
   write_pose(id, in.T_w_c, 1.0);
-  s.covis_count.store(0, std::memory_order_relaxed);
-  num_keyframes_.store(id + 1U, std::memory_order_release);
+  write_covis(id, nullptr, 0);
+  kf_serial_[id] = kf_serial_next_++;
+  s.state.store(load_own(s.state) | kLiveBit, std::memory_order_release);
+  if (id >= num_keyframes_.load(std::memory_order_relaxed)) {
+    num_keyframes_.store(id + 1U, std::memory_order_release);
+  }
+  newest_kf_.store(id, std::memory_order_release);
+  live_kfs_.store(load_own(live_kfs_) + 1U, std::memory_order_relaxed);
   return id;
 }
 
 Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
                                std::uint32_t ref_kp) {
-  const std::uint32_t id = num_points_.load(std::memory_order_relaxed);
-  if (id >= max_pts_) {
-    return runtime_error("map full: " + std::to_string(max_pts_) +
-                         " points (raise map.max_points)");
-  }
   if (!valid_keypoint(ref_kf, ref_kp)) {
     return invalid_argument("add_point: unknown keyframe " + std::to_string(ref_kf) +
                             " / keypoint " + std::to_string(ref_kp));
@@ -201,20 +266,31 @@ Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
                             std::to_string(ref_kf) + " already has a point");
   }
   if (!p_w.allFinite()) return invalid_argument("add_point: non-finite position");
+  const std::uint32_t id = take_slot(num_points_, max_pts_, pt_retired_, reused_pt_slots_);
+  if (id == kNoId) {
+    return runtime_error("map full: " + std::to_string(max_pts_) + " points (" +
+                         std::to_string(pt_retired_.size) +
+                         " freed slots wait for a reader; raise map.max_points)");
+  }
 
-  PointSlot& s = points_[id];
-  s.ref_kf = ref_kf;
-  s.ref_kp = ref_kp;
-  s.bad.store(0, std::memory_order_relaxed);
+  // Written while not live (a reader's snapshot of it fails), then published by the state.
+  write_ref(id, ref_kf, ref_kp);
   write_position(id, p_w);
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();
   float min_d = 0.0F;
   float max_d = 0.0F;
   shape_from_ref(id, p_w, normal, min_d, max_d);
   write_shape(id, kf_descriptors_[kp_index(ref_kf, ref_kp)], normal, min_d, max_d);
+  pt_visible_[id].store(1, std::memory_order_relaxed);  // the creating keyframe saw it
+  pt_found_[id].store(1, std::memory_order_relaxed);
+  pt_serial_[id] = kf_serial_next_;
   obs_[std::size_t{id} * max_obs_] = Observation::make(ref_kf, ref_kp);
   obs_count_[id] = 1;
-  num_points_.store(id + 1U, std::memory_order_release);
+  write_point_state(id, load_own(points_[id].state) | kLiveBit);
+  if (id >= num_points_.load(std::memory_order_relaxed)) {
+    num_points_.store(id + 1U, std::memory_order_release);
+  }
+  live_pts_.store(load_own(live_pts_) + 1U, std::memory_order_relaxed);
 
   assoc.store(id, std::memory_order_release);
   const CellKey key = grid_.key_of(p_w);
@@ -293,7 +369,7 @@ void Map::set_point_position(PointId p, const Eigen::Vector3d& p_w) {
 }
 
 void Map::set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale) {
-  if (kf >= num_keyframes_.load(std::memory_order_relaxed)) return;
+  if (!own_keyframe(kf)) return;
   if (!T_w_c.matrix().allFinite() || !std::isfinite(scale)) return;
   write_pose(kf, T_w_c, scale);
 }
@@ -306,7 +382,7 @@ void Map::set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float
 
 void Map::set_point_bad(PointId p) {
   if (!own_point(p)) return;
-  points_[p].bad.store(1, std::memory_order_release);
+  write_point_state(p, freed(load_own(points_[p].state)));
   grid_.remove(p, point_cell_[p]);
   point_cell_[p] = kNoCell;
   const Observation* o = &obs_[std::size_t{p} * max_obs_];
@@ -315,6 +391,53 @@ void Map::set_point_bad(PointId p) {
     if (load_own(assoc) == p) assoc.store(kNoId, std::memory_order_release);
   }
   obs_count_[p] = 0;
+  live_pts_.store(load_own(live_pts_) - 1U, std::memory_order_relaxed);
+  ++bad_points_;
+  pt_retired_.push(p, retire_epoch());  // unlinked: the epoch orders it before reuse
+}
+
+bool Map::remove_keyframe(KeyframeId kf, std::uint32_t min_point_observations,
+                          std::uint32_t* bad_points) {
+  if (bad_points != nullptr) *bad_points = 0;
+  if (!own_keyframe(kf) || kf == newest_kf_.load(std::memory_order_relaxed)) return false;
+  KeyframeSlot& s = kfs_[kf];
+  s.state.store(freed(load_own(s.state)), std::memory_order_release);
+
+  // Every edge to kf (lists are capped, so a neighbour may hold an edge kf does not).
+  const std::uint32_t used = num_keyframes_.load(std::memory_order_relaxed);
+  for (KeyframeId other = 0; other < used; ++other) {
+    if (other != kf && own_keyframe(other)) remove_edge(other, kf);
+  }
+  write_covis(kf, nullptr, 0);
+
+  // Its observations leave its points; points left with too few observations are freed.
+  const std::uint32_t min_obs = std::max(1U, min_point_observations);
+  const std::uint32_t nkp = s.num_keypoints;
+  for (std::uint32_t kp = 0; kp < nkp; ++kp) {
+    std::atomic<PointId>& assoc = kf_points_[kp_index(kf, kp)];
+    const PointId p = load_own(assoc);
+    if (p == kNoId) continue;
+    assoc.store(kNoId, std::memory_order_release);
+    if (!own_point(p)) continue;
+    Observation* o = &obs_[std::size_t{p} * max_obs_];
+    const std::uint32_t n = obs_count_[p];
+    Observation* end = std::remove_if(o, o + n, [&](Observation x) { return x.kf() == kf; });
+    const auto m = static_cast<std::uint32_t>(end - o);
+    obs_count_[p] = static_cast<std::uint8_t>(m);
+    if (m < min_obs) {
+      set_point_bad(p);
+      if (bad_points != nullptr) ++*bad_points;
+      continue;
+    }
+    if (own_ref_keyframe(p) == kf) {  // the oldest remaining observation becomes the reference
+      write_ref(p, o[0].kf(), o[0].kp());
+      update_point(p);
+    }
+  }
+  live_kfs_.store(load_own(live_kfs_) - 1U, std::memory_order_relaxed);
+  ++removed_keyframes_;
+  kf_retired_.push(kf, retire_epoch());
+  return true;
 }
 
 std::uint32_t Map::own_covis(KeyframeId kf, CovisibleKeyframe* out) const noexcept {
@@ -363,7 +486,7 @@ void Map::remove_edge(KeyframeId owner, KeyframeId other) noexcept {
 }
 
 void Map::update_covisibility(KeyframeId kf) {
-  if (kf >= num_keyframes_.load(std::memory_order_relaxed)) return;
+  if (!own_keyframe(kf)) return;
   // Shared points with every other keyframe (each point observes a keyframe at most once).
   std::uint32_t* weight = covis_weight_.get();
   std::uint32_t touched = 0;
@@ -407,10 +530,50 @@ std::size_t Map::point_num_observations(PointId p) const {
   return own_point(p) ? obs_count_[p] : 0U;
 }
 
+PointStats Map::point_stats(PointId p) const {
+  if (!own_point(p)) return {};
+  return {obs_count_[p], pt_visible_[p].load(std::memory_order_relaxed),
+          pt_found_[p].load(std::memory_order_relaxed), pt_serial_[p]};
+}
+
+std::uint64_t Map::keyframe_serial(KeyframeId kf) const noexcept {
+  return own_keyframe(kf) ? kf_serial_[kf] : kNoSerial;
+}
+
 SE3d Map::relative_pose(KeyframeId a, KeyframeId b) const {
-  const std::uint32_t n = num_keyframes_.load(std::memory_order_relaxed);
-  if (a >= n || b >= n) return SE3d::Identity();
+  if (!own_keyframe(a) || !own_keyframe(b)) return SE3d::Identity();
   return own_pose(a).inverse() * own_pose(b);
+}
+
+MapCounters Map::counters() const noexcept {
+  MapCounters c;
+  c.live_keyframes = load_own(live_kfs_);
+  c.live_points = load_own(live_pts_);
+  c.keyframe_slots_used = num_keyframes_.load(std::memory_order_relaxed);
+  c.point_slots_used = num_points_.load(std::memory_order_relaxed);
+  c.removed_keyframes = removed_keyframes_;
+  c.bad_points = bad_points_;
+  c.reused_keyframe_slots = reused_kf_slots_;
+  c.reused_point_slots = reused_pt_slots_;
+  c.keyframe_slots_waiting = kf_retired_.size;
+  c.point_slots_waiting = pt_retired_.size;
+  return c;
+}
+
+Result<int> Map::register_reader() {
+  for (int r = 0; r < kMaxMapReaders; ++r) {
+    ReaderSlot& slot = readers_[r];
+    if (slot.announced.load(std::memory_order_relaxed) != kReaderUnused) continue;
+    slot.announced.store(epoch_.load(std::memory_order_acquire), std::memory_order_release);
+    return r;
+  }
+  return runtime_error("map: more than " + std::to_string(kMaxMapReaders) +
+                       " registered reader threads");
+}
+
+void Map::release_reader(int reader) noexcept {
+  if (reader < 0 || reader >= kMaxMapReaders) return;
+  readers_[reader].announced.store(kReaderUnused, std::memory_order_release);
 }
 
 // ---- readers -----------------------------------------------------------------------------
@@ -423,8 +586,42 @@ std::uint32_t Map::num_points() const noexcept {
   return num_points_.load(std::memory_order_acquire);
 }
 
+void Map::reader_quiescent(int reader) noexcept {
+  if (reader < 0 || reader >= kMaxMapReaders) return;
+  readers_[reader].announced.store(epoch_.load(std::memory_order_acquire),
+                                   std::memory_order_release);
+}
+
+KeyframeId Map::newest_keyframe() const noexcept {
+  return newest_kf_.load(std::memory_order_acquire);
+}
+
+std::uint32_t Map::live_keyframes() const noexcept {
+  return live_kfs_.load(std::memory_order_relaxed);
+}
+
+std::uint32_t Map::live_points() const noexcept {
+  return live_pts_.load(std::memory_order_relaxed);
+}
+
+bool Map::keyframe_is_live(KeyframeId kf) const noexcept {
+  return live_keyframe(kf);
+}
+
+Generation Map::keyframe_generation(KeyframeId kf) const noexcept {
+  if (kf >= max_kf_) return kNoGeneration;
+  const std::uint32_t st = kfs_[kf].state.load(std::memory_order_acquire);
+  return is_live(st) ? generation_of(st) : kNoGeneration;
+}
+
+Generation Map::point_generation(PointId p) const noexcept {
+  if (p >= max_pts_) return kNoGeneration;
+  const std::uint32_t st = points_[p].state.load(std::memory_order_acquire);
+  return is_live(st) ? generation_of(st) : kNoGeneration;
+}
+
 bool Map::keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale) const noexcept {
-  if (kf >= num_keyframes()) return false;
+  if (!live_keyframe(kf)) return false;
   const KeyframeSlot& s = kfs_[kf];
   std::uint64_t w[kPoseWords];
   if (!s.pose_lock.read([&] {
@@ -438,25 +635,25 @@ bool Map::keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale) const noexcep
 }
 
 std::span<const features::Keypoint> Map::keyframe_keypoints(KeyframeId kf) const noexcept {
-  if (kf >= num_keyframes()) return {};
+  if (!live_keyframe(kf)) return {};
   return {&kf_keypoints_[kp_index(kf, 0)], kfs_[kf].num_keypoints};
 }
 
 std::span<const features::Descriptor> Map::keyframe_descriptors(KeyframeId kf) const noexcept {
-  if (kf >= num_keyframes()) return {};
+  if (!live_keyframe(kf)) return {};
   return {&kf_descriptors_[kp_index(kf, 0)], kfs_[kf].num_keypoints};
 }
 
 std::uint32_t Map::keyframe_num_keypoints(KeyframeId kf) const noexcept {
-  return kf < num_keyframes() ? kfs_[kf].num_keypoints : 0U;
+  return live_keyframe(kf) ? kfs_[kf].num_keypoints : 0U;
 }
 
 std::int64_t Map::keyframe_t_ns(KeyframeId kf) const noexcept {
-  return kf < num_keyframes() ? kfs_[kf].t_ns : 0;
+  return live_keyframe(kf) ? kfs_[kf].t_ns : 0;
 }
 
 std::uint64_t Map::keyframe_seq(KeyframeId kf) const noexcept {
-  return kf < num_keyframes() ? kfs_[kf].seq : 0U;
+  return live_keyframe(kf) ? kfs_[kf].seq : 0U;
 }
 
 PointId Map::keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept {
@@ -485,28 +682,38 @@ bool Map::keyframe_point_3d(KeyframeId kf, std::uint32_t kp, const geometry::Pin
 }
 
 bool Map::read_point(PointId p, PointView& out) const noexcept {
-  if (p >= num_points()) return false;
+  if (p >= max_pts_) return false;
   const PointSlot& s = points_[p];
-  if (s.bad.load(std::memory_order_acquire) != 0U) return false;
+  if (!is_live(s.state.load(std::memory_order_acquire))) return false;
   std::uint64_t w[kPointWords];
+  std::uint32_t state = 0;
   if (!s.lock.read([&] {
+        state = load_payload(s.state);
         for (int i = 0; i < kPointWords; ++i) w[i] = load_payload(s.words[i]);
       })) {
     return false;
   }
+  if (!is_live(state)) return false;
   decode_point(w, out);
-  out.ref_keyframe = s.ref_kf;
-  out.ref_keypoint = s.ref_kp;
+  out.generation = generation_of(state);
   return true;
 }
 
 bool Map::point_is_bad(PointId p) const noexcept {
-  return p >= num_points() || points_[p].bad.load(std::memory_order_acquire) != 0U;
+  return p >= max_pts_ || !is_live(points_[p].state.load(std::memory_order_acquire));
+}
+
+void Map::note_visible(PointId p) noexcept {
+  if (p < max_pts_) pt_visible_[p].fetch_add(1U, std::memory_order_relaxed);
+}
+
+void Map::note_found(PointId p) noexcept {
+  if (p < max_pts_) pt_found_[p].fetch_add(1U, std::memory_order_relaxed);
 }
 
 std::size_t Map::covisible_keyframes(KeyframeId kf,
                                      std::span<CovisibleKeyframe> out) const noexcept {
-  if (kf >= num_keyframes() || out.empty()) return 0;
+  if (!live_keyframe(kf) || out.empty()) return 0;
   const KeyframeSlot& s = kfs_[kf];
   const std::size_t base = std::size_t{kf} * max_cov_;
   std::size_t got = 0;
@@ -520,7 +727,7 @@ std::size_t Map::covisible_keyframes(KeyframeId kf,
 }
 
 std::uint32_t Map::covisibility_weight(KeyframeId a, KeyframeId b) const noexcept {
-  if (a >= num_keyframes()) return 0;
+  if (!live_keyframe(a)) return 0;
   const KeyframeSlot& s = kfs_[a];
   const std::size_t base = std::size_t{a} * max_cov_;
   std::uint32_t weight = 0;
@@ -556,7 +763,10 @@ std::size_t Map::memory_bytes() const noexcept {
   b += n_kp * (sizeof(features::Keypoint) + sizeof(features::Descriptor) +
                sizeof(std::atomic<PointId>) + 2 * sizeof(std::atomic<float>));
   b += std::size_t{max_kf_} * max_cov_ * sizeof(std::atomic<std::uint64_t>);
-  b += max_pts_ * (sizeof(PointSlot) + sizeof(std::uint8_t) + sizeof(CellKey));
+  b +=
+      max_pts_ * (sizeof(PointSlot) + sizeof(std::uint8_t) + sizeof(CellKey) +
+                  2 * sizeof(std::atomic<std::uint32_t>) + sizeof(std::uint64_t) + sizeof(Retired));
+  b += max_kf_ * (sizeof(std::uint64_t) + sizeof(Retired));
   b += std::size_t{max_pts_} * max_obs_ * sizeof(Observation);
   b += max_kf_ * (sizeof(std::uint32_t) + sizeof(KeyframeId) + sizeof(CovisibleKeyframe));
   b += (max_cov_ + 1U) * sizeof(CovisibleKeyframe);

@@ -10,31 +10,67 @@
 ///    group. They never block either (there is no lock at all).
 ///  - Any number of reader threads (the real-time tracker) call the "reader" group, which is
 ///    lock-free with bounded work: it never waits for the writer.
-///  - A keyframe / point is fully written into its slot, then the count is published with a
-///    release store. Readers load num_keyframes() / num_points() with acquire and only touch
-///    ids below it; every reader method checks the id and returns false / empty / kNoId /
-///    0 for an id that is not published yet.
-///  - Immutable after publication (plain memory, no synchronization cost): keyframe
-///    keypoints, descriptors, seq, t_ns and the point's reference keyframe / keypoint.
+///  - Every slot has a state word (generation << 1 | live). The writer fills a slot while it
+///    is not live, then publishes it with a release store of the live state; every reader
+///    method loads that state with acquire and returns false / empty / kNoId / 0 for a slot
+///    that is not live (never used, or freed). num_keyframes() / num_points() are the slot
+///    high-water marks (ids below them have been used; check liveness).
+///  - Immutable while a slot is live (plain memory, no synchronization cost): keyframe
+///    keypoints, descriptors, seq, t_ns.
 ///  - Mutable after publication, read through a per-slot seqlock whose payload is stored in
 ///    std::atomic words (seqlock.h; ThreadSanitizer-clean): keyframe pose + scale, point
-///    position, representative descriptor, normal and distance range, and each keyframe's
-///    covisibility list. A reader that cannot get a consistent snapshot in
-///    kSeqlockReadAttempts tries (the writer was preempted inside its short write section)
-///    gets false / 0 and skips the item.
+///    position, representative descriptor, normal and distance range, reference keyframe /
+///    keypoint and the point's state (so read_point returns a payload and the generation it
+///    belongs to, together), and each keyframe's covisibility list. A reader that cannot get
+///    a consistent snapshot in kSeqlockReadAttempts tries (the writer was preempted inside its
+///    short write section) gets false / 0 and skips the item.
 ///  - Single atomic words (no seqlock needed): keypoint->point associations, per-keypoint
-///    depth and confidence, the bad flag.
-///  - point_observations(), point_num_observations() and relative_pose() read writer-side
-///    state: writer thread only. Readers use keyframe_point() / keyframe_pose() instead.
+///    depth and confidence, the state words, the newest keyframe id.
+///  - Reader-side statistics: note_visible() / note_found() add to per-point atomic counters
+///    (relaxed); the writer reads them to cull points and resets them when a slot is reused.
+///  - point_observations(), point_num_observations(), point_stats(), keyframe_serial(),
+///    relative_pose() and counters() read writer-side state: writer thread only. Readers use
+///    keyframe_point() / keyframe_pose() instead.
 ///  - Consistency between items is not promised: a reader may see a point's new position with
 ///    the old cell, a new observation before the descriptor update, etc. Each individual
 ///    value read is one the writer wrote as a whole.
 ///
+/// Slot reclamation (quiescent-state-based)
+/// ----------------------------------------
+///  - A reader thread registers once (register_reader(), a setup call made before it and the
+///    writer run concurrently) and calls reader_quiescent(r) at the start of each unit of
+///    work (the tracker: each frame), a point where it holds no reference into the map except
+///    ids it will validate. Between two quiescent points is its read section. A quiescent
+///    point is one acquire load of the map epoch and one release store of it into the
+///    reader's own cache line: no allocation, no lock, no wait.
+///  - Freeing a slot (set_point_bad, remove_keyframe): the writer marks it not live with the
+///    generation incremented, unlinks it from everything readers reach (cells, keypoint
+///    associations, covisibility lists), then advances the epoch to E (release) and queues
+///    the slot tagged E. It reuses the slot (oldest freed first, after the never-used slots
+///    are exhausted) only once every registered reader has announced an epoch >= E.
+///  - Why a reader never sees a slot rewritten under it: a read section that announced
+///    A < E may still hold the old occupant, but the slot is not rewritten before that reader
+///    announces again; its release store of the announcement orders all its earlier reads
+///    before the writer's acquire load of it, and so before the rewrite. A read section that
+///    announced A >= E read the epoch after the writer stored E, so it sees the slot not live
+///    (or already live again with its new occupant, published with release), and that new
+///    occupant cannot be freed and reused before the reader's next announcement. So every
+///    plain read of slot memory is ordered against every write of it.
+///  - Ids a reader keeps across quiescent points (the tracker's recent keyframes, the point
+///    ids it hands to keyframe creation) may name a newer occupant: compare the generation
+///    saved with them (PointView::generation, keyframe_generation()) to detect that.
+///  - A registered reader that stops announcing keeps every slot freed after its last
+///    announcement from being reused: add_* then report the map full (bounded, never a
+///    wait). A thread that reads without registering is safe only while nothing it reads is
+///    reused concurrently (tests, offline tools).
+///  - In lockstep mode the tracker announces at every frame, so a slot freed while a
+///    keyframe is created is reusable from the next frame on.
+///
 /// Design notes (why not exactly the first sketch):
-///  - Ids are never reused (a bad point keeps its slot; keyframes are never removed): a stale
-///    id held by the tracker can never alias a newer item. The cost is that max_points and
-///    max_keyframes bound what a session can ever create (add_* then return an error naming
-///    the option).
+///  - Ids are reused, with a generation per slot (above): max_points and max_keyframes bound
+///    the live map, not what a run can ever create, so culling keeps a long run going.
+///    add_* return an error naming the option only when every slot is live or still waits
+///    for a reader.
 ///  - The seqlock is fence-free (release payload stores / acquire payload loads) because GCC's
 ///    ThreadSanitizer does not support std::atomic_thread_fence (-Wtsan); see seqlock.h.
 ///  - Cells use swap-with-last removal under a per-cell seqlock (dense cells, no tombstones);
@@ -43,16 +79,19 @@
 ///    frustum) or, when the frustum covers more cells than a table scan costs, scans the
 ///    table once: its work is bounded by the table size whatever near / far are.
 ///  - Observation lists (keyframe, keypoint) of points are writer-side data (the writer is
-///    the one that needs them: covisibility, descriptors); readers see the same relation
-///    from the keyframe side through keyframe_point().
-///  - Memory with default options: ~81 MiB (memory_bytes()): keyframes 39 MiB (400 x 1500
-///    keypoints x 68 B: keypoint, descriptor, association, depth, confidence), points 29 MiB
-///    (150000 x 201 B: seqlocked payload, 24 packed 32-bit observations, cell key), cells
-///    13 MiB (65536 entries x 48 ids), covisibility 0.2 MiB. Every array is written once by
-///    the constructor, so its pages are resident (no page faults on the real-time path).
+///    the one that needs them: covisibility, descriptors, culling); readers see the same
+///    relation from the keyframe side through keyframe_point().
+///  - Memory with default options: ~86 MiB (memory_bytes()): keyframes 39 MiB (400 x 1500
+///    keypoints x 68 B: keypoint, descriptor, association, depth, confidence), points 33 MiB
+///    (150000 x 233 B: seqlocked payload and state, 24 packed 32-bit observations, cell key,
+///    visible / found counters, creation serial, free-list entry), cells 13 MiB (65536
+///    entries x 48 ids), covisibility 0.2 MiB. Every array is written once by the
+///    constructor, so its pages are resident (no page faults on the real-time path), and
+///    reusing slots keeps it the whole memory of the map however long the run.
 ///  - Covisibility edges are refreshed by update_covisibility(kf) for kf and, symmetrically,
 ///    in the lists of all keyframes sharing points with it; an edge between two keyframes
-///    that are both never updated again keeps its last weight.
+///    that are both never updated again keeps its last weight. remove_keyframe() removes
+///    every edge to the removed keyframe.
 
 #include <atomic>
 #include <cstdint>
@@ -74,6 +113,9 @@
 
 namespace mer::map {
 
+/// Reader threads that can register for slot reclamation (the tracker is one).
+inline constexpr int kMaxMapReaders = 4;
+
 /// What the front end hands to add_keyframe (spans are copied).
 struct KeyframeInput {
   std::uint64_t seq = 0;          ///< frame sequence number
@@ -90,10 +132,12 @@ struct PointView {
   Eigen::Vector3d p_w = Eigen::Vector3d::Zero();     ///< world position
   features::Descriptor descriptor{};                 ///< representative descriptor (medoid)
   Eigen::Vector3f normal = Eigen::Vector3f::Zero();  ///< mean unit viewing direction
-  KeyframeId ref_keyframe = kNoId;                   ///< keyframe that created it
-  std::uint32_t ref_keypoint = 0;                    ///< its keypoint in ref_keyframe
-  float min_distance = 0.0F;  ///< scale invariance: closest distance it can be matched at
-  float max_distance = 0.0F;  ///< farthest distance it can be matched at
+  KeyframeId ref_keyframe = kNoId;  ///< reference keyframe (creator, or an observer of it once
+                                    ///< the creator was removed)
+  std::uint32_t ref_keypoint = 0;   ///< its keypoint in ref_keyframe
+  float min_distance = 0.0F;        ///< scale invariance: closest distance it can be matched at
+  float max_distance = 0.0F;        ///< farthest distance it can be matched at
+  Generation generation = kNoGeneration;  ///< occupant of the slot this snapshot belongs to
 };
 
 /// An edge of the covisibility graph.
@@ -102,9 +146,34 @@ struct CovisibleKeyframe {
   std::uint32_t weight = 0;  ///< map points both observe
 };
 
+/// Writer-side facts about a live point (culling rules).
+struct PointStats {
+  std::uint32_t observations = 0;    ///< keyframes observing it
+  std::uint32_t visible = 0;         ///< frames it projected into (note_visible)
+  std::uint32_t found = 0;           ///< frames it was a tracked inlier in (note_found)
+  std::uint64_t created_serial = 0;  ///< keyframes_added() when it was created
+};
+
+/// Counters of the map (writer thread).
+struct MapCounters {
+  std::uint32_t live_keyframes = 0;
+  std::uint32_t live_points = 0;
+  std::uint32_t keyframe_slots_used = 0;  ///< high-water mark (num_keyframes())
+  std::uint32_t point_slots_used = 0;     ///< high-water mark (num_points())
+  std::uint64_t removed_keyframes = 0;    ///< remove_keyframe() calls that removed one
+  std::uint64_t bad_points = 0;           ///< points freed (set_point_bad), all causes
+  std::uint64_t reused_keyframe_slots = 0;
+  std::uint64_t reused_point_slots = 0;
+  std::uint32_t keyframe_slots_waiting = 0;  ///< freed, not reusable yet (or not needed yet)
+  std::uint32_t point_slots_waiting = 0;
+};
+
 /// The map (see the file comment for the threading contract).
 class Map {
  public:
+  /// keyframe_serial() of an id that is not live.
+  static constexpr std::uint64_t kNoSerial = ~std::uint64_t{0};
+
   /// Preallocates everything. Options are used as effective_options(opts) (validate() them
   /// first to report bad values to the user; the constructor never fails).
   explicit Map(const MapOptions& opts);
@@ -112,14 +181,16 @@ class Map {
   Map& operator=(const Map&) = delete;
 
   // ---------------------------------------------------------------- writer thread only --
-  /// Copies a keyframe in and publishes it. Errors: map full (names map.max_keyframes), too
-  /// many keypoints (names map.max_keypoints_per_keyframe), span sizes that disagree.
+  /// Copies a keyframe into a free slot and publishes it as the newest keyframe. Errors: map
+  /// full (names map.max_keyframes), too many keypoints (names
+  /// map.max_keypoints_per_keyframe), span sizes that disagree.
   Result<KeyframeId> add_keyframe(const KeyframeInput& in);
   /// Creates a point at p_w observed by keypoint ref_kp of ref_kf: descriptor from that
   /// keypoint, normal / distances from that keyframe's pose, inserted into its cell (a full
-  /// cell is counted in cell_insert_failures(); the point still exists). Errors: map full
-  /// (names map.max_points), unknown keyframe / keypoint, keypoint already associated,
-  /// non-finite position.
+  /// cell is counted in cell_insert_failures(); the point still exists). Its visible / found
+  /// counters start at 1 (the creating keyframe saw and found it). Errors: map full (names
+  /// map.max_points), unknown keyframe / keypoint, keypoint already associated, non-finite
+  /// position.
   Result<PointId> add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf, std::uint32_t ref_kp);
   /// Associates keypoint kp of kf with point p. False when an id is invalid, the point is bad,
   /// the keypoint already has a point, the point already has an observation in kf or its
@@ -137,9 +208,17 @@ class Map {
   void set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale = 1.0);
   /// Sets the depth / confidence of one keypoint (depth refinement after publication).
   void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
-  /// Marks a point bad (final): removed from its cell, its keypoint associations and
-  /// observations cleared. Covisibility weights change at the next update_covisibility.
+  /// Frees a point: not live (generation incremented), removed from its cell, its keypoint
+  /// associations and observations cleared, its slot queued for reuse. Covisibility weights
+  /// change at the next update_covisibility.
   void set_point_bad(PointId p);
+  /// Removes keyframe kf: every covisibility edge to it, its observations from its points
+  /// (a point whose reference it was takes its first remaining observation as reference),
+  /// and frees the points left with fewer than max(1, min_point_observations) observations
+  /// (counted in *bad_points). The slot is queued for reuse. False (nothing done) for an id
+  /// that is not live or for the newest keyframe (newest_keyframe() always names a live one).
+  bool remove_keyframe(KeyframeId kf, std::uint32_t min_point_observations,
+                       std::uint32_t* bad_points = nullptr);
   /// Recomputes kf's KF-KF edges (weight = shared non-bad points; the strongest
   /// map.max_covisible_per_keyframe kept, sorted by weight desc then id asc) and the reverse
   /// edges in every keyframe sharing points with kf (each keeps its strongest edges too);
@@ -150,19 +229,50 @@ class Map {
                                  std::span<std::pair<KeyframeId, std::uint32_t>> out) const;
   /// Number of observations of p (0 for a bad or unknown point).
   std::size_t point_num_observations(PointId p) const;
+  /// Observations, visible / found counters and creation serial of p (zeros if not live).
+  PointStats point_stats(PointId p) const;
+  /// Keyframes added so far; the newest keyframe's serial is keyframes_added() - 1.
+  std::uint64_t keyframes_added() const noexcept { return kf_serial_next_; }
+  /// Serial (insertion order, 0 for the first keyframe ever added) of a live keyframe;
+  /// kNoSerial for an id that is not live.
+  std::uint64_t keyframe_serial(KeyframeId kf) const noexcept;
   /// T_a_b = T_w_a^-1 * T_w_b from the current poses (identity for an unknown id).
   SE3d relative_pose(KeyframeId a, KeyframeId b) const;
+  /// Live / used / freed / reused slot counts.
+  MapCounters counters() const noexcept;
+  /// Registers a reader thread for slot reclamation (setup call: before the reader and the
+  /// writer run concurrently). The handle is passed to reader_quiescent(). Error when
+  /// kMaxMapReaders readers are registered.
+  Result<int> register_reader();
+  /// Unregisters a reader: from its own thread once it reads the map no more (its release
+  /// store orders its reads before any reuse), or as a setup call.
+  void release_reader(int reader) noexcept;
 
   // ------------------------------------------------------- any thread, lock-free --------
-  /// Published keyframes (acquire); ids below it are valid.
+  /// Quiescent point of a registered reader: it holds no map reference except ids it will
+  /// validate by generation. Call at the start of each unit of work.
+  void reader_quiescent(int reader) noexcept;
+  /// Keyframe slots ever used (acquire); ids below it may be live.
   std::uint32_t num_keyframes() const noexcept;
-  /// Published points (acquire); ids below it are valid (some may be bad).
+  /// Point slots ever used (acquire); ids below it may be live.
   std::uint32_t num_points() const noexcept;
+  /// The keyframe added last (kNoId before the first one).
+  KeyframeId newest_keyframe() const noexcept;
+  /// Live keyframes / points (relaxed snapshots).
+  std::uint32_t live_keyframes() const noexcept;
+  std::uint32_t live_points() const noexcept;
+  /// True for a live keyframe.
+  bool keyframe_is_live(KeyframeId kf) const noexcept;
+  /// Generation of a live keyframe, kNoGeneration otherwise.
+  Generation keyframe_generation(KeyframeId kf) const noexcept;
+  /// Generation of a live point, kNoGeneration otherwise.
+  Generation point_generation(PointId p) const noexcept;
   /// Consistent pose (and scale); false for an unknown id or after failed retries.
   bool keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale = nullptr) const noexcept;
-  /// Keypoints of kf (immutable after publication; empty for an unknown id).
+  /// Keypoints of kf (immutable while live; valid until the caller's next quiescent point;
+  /// empty for an unknown id).
   std::span<const features::Keypoint> keyframe_keypoints(KeyframeId kf) const noexcept;
-  /// Descriptors of kf (immutable after publication; empty for an unknown id).
+  /// Descriptors of kf (as keyframe_keypoints).
   std::span<const features::Descriptor> keyframe_descriptors(KeyframeId kf) const noexcept;
   /// Number of keypoints of kf (0 for an unknown id).
   std::uint32_t keyframe_num_keypoints(KeyframeId kf) const noexcept;
@@ -184,6 +294,10 @@ class Map {
   bool read_point(PointId p, PointView& out) const noexcept;
   /// True for a bad or unpublished point.
   bool point_is_bad(PointId p) const noexcept;
+  /// Counts a frame p projected into (tracking statistics; relaxed atomic add).
+  void note_visible(PointId p) noexcept;
+  /// Counts a frame p was a tracked inlier in (tracking statistics; relaxed atomic add).
+  void note_found(PointId p) noexcept;
   /// kf's covisible keyframes sorted by weight desc (up to out.size()); count written (0 for
   /// an unknown id or after failed retries).
   std::size_t covisible_keyframes(KeyframeId kf, std::span<CovisibleKeyframe> out) const noexcept;
@@ -221,12 +335,25 @@ class Map {
   static constexpr int kPointNormalXY = 7;    // floats (normal x, normal y)
   static constexpr int kPointNormalZMin = 8;  // floats (normal z, min distance)
   static constexpr int kPointMax = 9;         // floats (max distance, unused)
-  static constexpr int kPointWords = 10;
+  static constexpr int kPointRef = 10;        // reference keyframe (low), keypoint (high)
+  static constexpr int kPointWords = 11;
+
+  /// State word: generation << 1 | live.
+  static constexpr std::uint32_t kLiveBit = 1U;
+  static bool is_live(std::uint32_t state) noexcept { return (state & kLiveBit) != 0U; }
+  static Generation generation_of(std::uint32_t state) noexcept { return state >> 1U; }
+  /// The state of the slot's next occupant while it is free.
+  static std::uint32_t freed(std::uint32_t state) noexcept {
+    return (generation_of(state) + 1U) << 1U;
+  }
+  /// Announcement of a reader slot nobody registered.
+  static constexpr std::uint64_t kReaderUnused = ~std::uint64_t{0};
 
   struct KeyframeSlot {
-    std::uint64_t seq = 0;  // immutable after publication
+    std::uint64_t seq = 0;  // immutable while live
     std::int64_t t_ns = 0;
     std::uint32_t num_keypoints = 0;
+    std::atomic<std::uint32_t> state{0};  // generation << 1 | live
     SeqLock pose_lock;
     std::atomic<std::uint64_t> pose[kPoseWords] = {};
     SeqLock covis_lock;
@@ -234,9 +361,7 @@ class Map {
   };
   struct PointSlot {
     SeqLock lock;
-    std::atomic<std::uint8_t> bad{0};
-    KeyframeId ref_kf = kNoId;  // immutable after publication
-    std::uint32_t ref_kp = 0;
+    std::atomic<std::uint32_t> state{0};  // generation << 1 | live; stored in write sections
     std::atomic<std::uint64_t> words[kPointWords] = {};
   };
   /// (keyframe, keypoint) in 32 bits: the option ranges keep max_keyframes <= 100000 <
@@ -250,26 +375,63 @@ class Map {
     KeyframeId kf() const noexcept { return bits >> kKeypointBits; }
     std::uint32_t kp() const noexcept { return bits & ((1U << kKeypointBits) - 1U); }
   };
+  /// A freed slot and the epoch it may be reused from.
+  struct Retired {
+    std::uint64_t epoch = 0;
+    std::uint32_t id = 0;
+  };
+  /// FIFO of freed slots (capacity: every slot once); epochs increase from front to back.
+  struct RetireQueue {
+    std::unique_ptr<Retired[]> items;
+    std::uint32_t capacity = 0;
+    std::uint32_t head = 0;
+    std::uint32_t size = 0;
+    explicit RetireQueue(std::uint32_t cap)
+        : items(std::make_unique<Retired[]>(cap)), capacity(cap) {}
+    void push(std::uint32_t id, std::uint64_t epoch) noexcept {
+      items[(head + size) % capacity] = {epoch, id};
+      ++size;
+    }
+    const Retired& front() const noexcept { return items[head]; }
+    void pop() noexcept {
+      head = (head + 1U) % capacity;
+      --size;
+    }
+  };
+  /// One registered reader's last announced epoch, alone on its cache line.
+  struct alignas(platform::kCacheLine) ReaderSlot {
+    std::atomic<std::uint64_t> announced{kReaderUnused};
+  };
 
   std::size_t kp_index(KeyframeId kf, std::uint32_t kp) const noexcept {
     return static_cast<std::size_t>(kf) * max_kp_ + kp;
   }
+  bool live_keyframe(KeyframeId kf) const noexcept;  // acquire: any thread
   bool valid_keypoint(KeyframeId kf, std::uint32_t kp) const noexcept;
-  bool own_point(PointId p) const noexcept;  // writer: published and not bad
+  bool own_keyframe(KeyframeId kf) const noexcept;  // writer: live
+  bool own_point(PointId p) const noexcept;         // writer: live
   static SE3d decode_pose(const std::uint64_t (&w)[kPoseWords]) noexcept;
   static void decode_point(const std::uint64_t (&w)[kPointWords], PointView& out) noexcept;
   SE3d own_pose(KeyframeId kf) const noexcept;
   Eigen::Vector3d own_position(PointId p) const noexcept;
+  KeyframeId own_ref_keyframe(PointId p) const noexcept;
+  std::uint32_t own_ref_keypoint(PointId p) const noexcept;
   void write_pose(KeyframeId kf, const SE3d& T_w_c, double scale) noexcept;
   void write_position(PointId p, const Eigen::Vector3d& p_w) noexcept;
   void write_shape(PointId p, const features::Descriptor& d, const Eigen::Vector3d& normal,
                    float min_d, float max_d) noexcept;
+  void write_ref(PointId p, KeyframeId kf, std::uint32_t kp) noexcept;
+  void write_point_state(PointId p, std::uint32_t state) noexcept;
   void shape_from_ref(PointId p, const Eigen::Vector3d& p_w, Eigen::Vector3d& normal, float& min_d,
                       float& max_d) const noexcept;
   std::uint32_t own_covis(KeyframeId kf, CovisibleKeyframe* out) const noexcept;
   void write_covis(KeyframeId kf, const CovisibleKeyframe* list, std::uint32_t n) noexcept;
   void upsert_edge(KeyframeId owner, KeyframeId other, std::uint32_t weight) noexcept;
   void remove_edge(KeyframeId owner, KeyframeId other) noexcept;
+  std::uint64_t retire_epoch() noexcept;  // advances the epoch
+  bool readers_passed(std::uint64_t epoch) const noexcept;
+  std::uint32_t take_slot(std::atomic<std::uint32_t>& high_water, std::uint32_t capacity,
+                          RetireQueue& retired, std::uint64_t& reused) noexcept;
 
   MapOptions opts_;
   std::uint32_t max_kf_;
@@ -287,12 +449,24 @@ class Map {
   std::unique_ptr<std::atomic<float>[]> kf_depth_conf_;     // max_kf x max_kp
   std::unique_ptr<std::atomic<std::uint64_t>[]> covis_;     // max_kf x max_cov (id<<32|w)
   std::unique_ptr<PointSlot[]> points_;
+  std::unique_ptr<std::atomic<std::uint32_t>[]> pt_visible_;  // max_pts, reader-incremented
+  std::unique_ptr<std::atomic<std::uint32_t>[]> pt_found_;    // max_pts, reader-incremented
   CellGrid grid_;
 
   // Writer-only storage.
-  std::unique_ptr<Observation[]> obs_;         // max_pts x max_obs
-  std::unique_ptr<std::uint8_t[]> obs_count_;  // max_pts
-  std::unique_ptr<CellKey[]> point_cell_;      // cell holding each point, kNoCell if none
+  std::unique_ptr<Observation[]> obs_;          // max_pts x max_obs
+  std::unique_ptr<std::uint8_t[]> obs_count_;   // max_pts
+  std::unique_ptr<CellKey[]> point_cell_;       // cell holding each point, kNoCell if none
+  std::unique_ptr<std::uint64_t[]> kf_serial_;  // max_kf: insertion order of the occupant
+  std::unique_ptr<std::uint64_t[]> pt_serial_;  // max_pts: keyframes_added() at creation
+  RetireQueue kf_retired_;
+  RetireQueue pt_retired_;
+  std::uint64_t kf_serial_next_ = 0;
+  std::uint64_t epoch_own_ = 0;  // writer's copy of epoch_
+  std::uint64_t removed_keyframes_ = 0;
+  std::uint64_t bad_points_ = 0;
+  std::uint64_t reused_kf_slots_ = 0;
+  std::uint64_t reused_pt_slots_ = 0;
 
   // Writer scratch (sized at construction).
   std::unique_ptr<std::uint32_t[]> covis_weight_;      // max_kf, all zero between calls
@@ -303,7 +477,12 @@ class Map {
   std::unique_ptr<int[]> medoid_row_;                  // max_obs
 
   alignas(platform::kCacheLine) std::atomic<std::uint32_t> num_keyframes_{0};
+  std::atomic<KeyframeId> newest_kf_{kNoId};
+  std::atomic<std::uint32_t> live_kfs_{0};
   alignas(platform::kCacheLine) std::atomic<std::uint32_t> num_points_{0};
+  std::atomic<std::uint32_t> live_pts_{0};
+  alignas(platform::kCacheLine) std::atomic<std::uint64_t> epoch_{0};
+  ReaderSlot readers_[kMaxMapReaders];
 };
 
 }  // namespace mer::map

@@ -10,8 +10,8 @@ namespace mer::map {
 /// Options of the map (config section `map`). All storage is sized from these at
 /// construction; nothing grows afterwards.
 struct MapOptions {
-  int max_keyframes = 400;                ///< keyframe slots
-  int max_points = 150000;                ///< map-point slots (ids are never reused)
+  int max_keyframes = 400;                ///< keyframe slots (freed slots are reused)
+  int max_points = 150000;                ///< map-point slots (freed slots are reused)
   int max_keypoints_per_keyframe = 1500;  ///< keypoint slots per keyframe
   int max_observations_per_point = 24;    ///< keyframe observations kept per point
   int max_covisible_per_keyframe = 64;    ///< strongest covisibility edges kept per keyframe
@@ -25,9 +25,13 @@ struct MapOptions {
 
   template <class V>
   void visit(V& v) {
-    v.field("max_keyframes", max_keyframes, "keyframe slots (preallocated)",
+    v.field("max_keyframes", max_keyframes,
+            "keyframe slots (preallocated; slots of culled keyframes are reused): the most "
+            "keyframes alive at once",
             options::Range<int>{2, 100000});  // < 2^18: observations pack into 32 bits
-    v.field("max_points", max_points, "map-point slots (preallocated; ids are not reused)",
+    v.field("max_points", max_points,
+            "map-point slots (preallocated; slots of culled points are reused): the most "
+            "map points alive at once",
             options::Range<int>{1, 1 << 24});
     v.field("max_keypoints_per_keyframe", max_keypoints_per_keyframe,
             "keypoints stored per keyframe", options::Range<int>{1, 16384});  // <= 2^14

@@ -111,6 +111,8 @@ Status Pipeline::init(const std::string& output_dir) {
   ba_ = std::make_unique<backend::LocalBundleAdjuster>(
       config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,
       builder_->metric_map_depth());
+  culler_ =
+      std::make_unique<backend::MapCuller>(config_.culling, *map_, builder_->metric_map_depth());
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;
@@ -201,8 +203,10 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
                     summarize(*lat_keyframe_), summarize(*lat_local_ba_)};
   stats_.tracking_steps.clear();
   for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
-  stats_.keyframes = map_->num_keyframes();
-  stats_.map_points = map_->num_points();
+  stats_.map = map_->counters();
+  stats_.keyframes = stats_.map.live_keyframes;
+  stats_.map_points = stats_.map.live_points;
+  stats_.culling = culler_->totals();
   stats_.tracker = tracker_->counters();
   stats_.focal = tracker_->focal();
   stats_.mapping = builder_->totals();
@@ -214,18 +218,26 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
 
 void Pipeline::run_final_ba() {
   // Every stage has stopped: this thread is the map's only writer now.
+  // Live keyframes in time order (slots are reused, so ids are not).
   FinalBaStats& f = stats_.final_ba;
+  std::vector<map::KeyframeId> live;
   const map::KeyframeId n = map_->num_keyframes();
-  f.corrections.resize(n);
   for (map::KeyframeId id = 0; id < n; ++id) {
-    f.corrections[id].t_ns = map_->keyframe_t_ns(id);
-    (void)map_->keyframe_pose(id, f.corrections[id].T_w_c_before);
+    if (map_->keyframe_is_live(id)) live.push_back(id);
+  }
+  std::sort(live.begin(), live.end(), [&](map::KeyframeId a, map::KeyframeId b) {
+    return map_->keyframe_t_ns(a) < map_->keyframe_t_ns(b);
+  });
+  f.corrections.resize(live.size());
+  for (std::size_t i = 0; i < live.size(); ++i) {
+    f.corrections[i].t_ns = map_->keyframe_t_ns(live[i]);
+    (void)map_->keyframe_pose(live[i], f.corrections[i].T_w_c_before);
   }
   const backend::LocalBaReport rep =
       ba_->optimize_full(tracker_->intrinsics(), config_.backend.full_max_iterations);
-  for (map::KeyframeId id = 0; id < n; ++id) {
-    f.corrections[id].T_w_c_after = f.corrections[id].T_w_c_before;
-    (void)map_->keyframe_pose(id, f.corrections[id].T_w_c_after);
+  for (std::size_t i = 0; i < live.size(); ++i) {
+    f.corrections[i].T_w_c_after = f.corrections[i].T_w_c_before;
+    (void)map_->keyframe_pose(live[i], f.corrections[i].T_w_c_after);
   }
   f.ran = rep.ran;
   f.keyframes = rep.keyframes;
@@ -245,6 +257,9 @@ void Pipeline::create_keyframe(const map::KeyframeJob& job) {
     const backend::LocalBaReport ba = ba_->spin_once(rep.keyframe, job.K);
     if (ba.ran) lat_local_ba_->record(job.seq, t_ba, platform::monotonic_now_ns() - t_ba);
   }
+  // Culling frees slots for the next keyframes; after a refused insertion (map full) it
+  // still runs around the newest keyframe.
+  (void)culler_->spin_once(rep.ok ? rep.keyframe : map_->newest_keyframe());
   lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
 }
 
@@ -466,6 +481,7 @@ Status Pipeline::run_threaded() {
             ++allocs_tracking_.frames;
           }
         });
+    tracker_->stop_reading();  // queued keyframes may reuse slots freed after its last frame
     tracking_done.store(true, std::memory_order_release);
     result_wake.notify_all();
     job_wake.notify_all();

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "backend/local_ba.h"
+#include "backend/map_culling.h"
 #include "core/status.h"
 #include "depth/depth_map_source.h"
 #include "depth/depth_options.h"
@@ -55,6 +56,7 @@ struct PipelineConfig {
   depth::DepthOptions depth;
   backend::LocalBaOptions backend;
   hal::CameraIntrinsics intrinsics;  ///< calibration in use (source's, or the override)
+  backend::CullingOptions culling;
 };
 
 /// Latency of one stage, summarized.
@@ -111,14 +113,16 @@ struct PipelineStats {
   std::uint64_t frames_processed = 0;        ///< frames tracking ran on
   std::uint64_t frames_dropped = 0;          ///< frames evicted from the capture ring (threaded)
   std::uint64_t frames_lost = 0;             ///< processed frames without a pose
-  std::uint64_t keyframes = 0;               ///< keyframes in the map at the end
+  std::uint64_t keyframes = 0;               ///< keyframes alive in the map at the end
   std::uint64_t keyframes_deferred = 0;      ///< keyframe decisions retried: every job slot busy
-  std::uint64_t map_points = 0;              ///< map-points at the end
+  std::uint64_t map_points = 0;              ///< map-points alive at the end
   std::uint64_t steady_frames = 0;           ///< frames tracked against an existing map
   frontend::TrackerCounters tracker;         ///< tracking counters
   frontend::FocalReport focal;               ///< focal length used / estimated
   depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
+  backend::CullingTotals culling;            ///< map culling totals
+  map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
   std::vector<StageLatency> tracking_steps;  ///< tracking breakdown (extract, query, ...)
@@ -177,6 +181,7 @@ class Pipeline {
   std::unique_ptr<frontend::Tracker> tracker_;
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
+  std::unique_ptr<backend::MapCuller> culler_;
   void create_keyframe(const map::KeyframeJob& job);
   std::vector<map::KeyframeJob> jobs_;
   std::array<std::unique_ptr<platform::LatencyRecorder>,

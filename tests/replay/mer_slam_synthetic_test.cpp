@@ -1,6 +1,6 @@
 // mer_slam end to end on the synthetic camera: lockstep determinism of the output files,
-// clean stop on SIGINT with every output written, and the allocation/latency accounting in
-// summary.json of a threaded run.
+// clean stop on SIGINT with every output written, the allocation/latency accounting in
+// summary.json of a threaded run, and a map kept bounded by culling.
 #include <fcntl.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -103,6 +103,49 @@ TEST(MerSlamSynthetic, FusingCovisiblePointsAddsObservations) {
   EXPECT_GT(static_cast<int>(s["map"]["view_observations"]), 0);
   EXPECT_GT(static_cast<int>(s["map"]["new_points"]), 0);
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
+}
+
+// Culling keeps the map bounded: room_loop with 20 keyframe and 4000 point slots. Without
+// culling the map is full after ~13 s and tracking is lost for most of the rest; with it,
+// keyframes and points are removed, their slots reused, and every frame stays tracked.
+TEST(MerSlamSynthetic, CullingKeepsTheMapBounded) {
+  const auto d = fresh_dir("mer_e2e_culling");
+  const auto off = fresh_dir("mer_e2e_culling_off");
+  std::filesystem::create_directories(d);
+  const std::string cfg = (d / "small_map.yaml").string();
+  const std::string cfg_off = (d / "small_map_no_culling.yaml").string();
+  const char* small_map = "map:\n  max_keyframes: 20\n  max_points: 4000\n";
+  for (const auto& [path, extra] :
+       {std::pair{cfg, ""}, std::pair{cfg_off, "culling:\n  enabled: false\n"}}) {
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs(small_map, f);
+    std::fputs(extra, f);
+    std::fclose(f);
+  }
+  for (const auto& [dir, c] : {std::pair{d, cfg}, std::pair{off, cfg_off}}) {
+    const auto r = run_command(quote(kExe) + " --lockstep --input synthetic:room_loop " +
+                               "--max-frames 450 --quiet --config " + quote(c) + " --output " +
+                               quote(dir.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  cv::FileStorage s = open_summary(d);
+  ASSERT_TRUE(s.isOpened());
+  EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
+  const cv::FileNode m = s["map"];
+  EXPECT_LE(static_cast<int>(m["live_keyframes"]), 20);
+  EXPECT_LE(static_cast<int>(m["live_points"]), 4000);
+  EXPECT_EQ(static_cast<int>(m["keyframe_slots_used"]), 20);
+  EXPECT_EQ(static_cast<int>(m["point_slots_used"]), 4000);
+  EXPECT_GT(static_cast<int>(m["culled_keyframes"]), 10);
+  EXPECT_GT(static_cast<int>(m["reused_keyframe_slots"]), 10);
+  EXPECT_GT(static_cast<int>(m["reused_point_slots"]), 1000);
+  EXPECT_EQ(static_cast<int>(m["keyframe_failures"]), 0);
+  // The same run without culling: the map fills and tracking is lost.
+  cv::FileStorage s_off = open_summary(off);
+  ASSERT_TRUE(s_off.isOpened());
+  EXPECT_LT(static_cast<double>(s_off["accuracy"]["tracked_after_init_pct"]), 80.0);
+  EXPECT_GT(static_cast<int>(s_off["map"]["keyframe_failures"]), 0);
 }
 
 TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {

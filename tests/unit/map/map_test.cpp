@@ -1,5 +1,6 @@
 // Map: options, keyframes and points, associations, descriptors, covisibility, cell moves,
-// zero allocations after construction and the query_visible time budget.
+// keyframe removal, slot reuse gated by registered readers and stale-id detection by
+// generation, zero allocations after construction and the query_visible time budget.
 #include "map/map.h"
 
 #include <algorithm>
@@ -493,11 +494,179 @@ TEST(Map, RelativePose) {
   EXPECT_TRUE(m.relative_pose(0, 5).isApprox(SE3d::Identity()));
 }
 
+// ---- removal and slot reuse ------------------------------------------------------------------
+
+TEST(Map, FreedPointSlotIsReusedOnlyAfterEveryReaderPassed) {
+  MapOptions o = small_options();
+  o.max_points = 3;
+  Map m(o);
+  const Result<int> reader = m.register_reader();
+  ASSERT_TRUE(reader.is_ok());
+  const KeyframeId kf = add_kf(m, make_kf(10, 1), SE3d::Identity(), 0);
+  const PointId a = add_pt(m, Eigen::Vector3d(0, 0, 1), kf, 0);
+  const PointId b = add_pt(m, Eigen::Vector3d(0, 0, 2), kf, 1);
+  add_pt(m, Eigen::Vector3d(0, 0, 3), kf, 2);
+  PointView v;
+  ASSERT_TRUE(m.read_point(b, v));
+  const Generation gen_b = v.generation;
+  EXPECT_EQ(m.point_generation(b), gen_b);
+  EXPECT_EQ(m.live_points(), 3u);
+
+  m.set_point_bad(b);
+  EXPECT_EQ(m.point_generation(b), kNoGeneration);
+  EXPECT_EQ(m.live_points(), 2u);
+  EXPECT_EQ(m.counters().point_slots_waiting, 1u);
+  // The reader announced before b was freed: it may still read b's slot, so it is not reused.
+  Result<PointId> r = m.add_point(Eigen::Vector3d(1, 0, 1), kf, 5);
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("map.max_points"), std::string::npos);
+  EXPECT_NE(r.status().message().find("wait for a reader"), std::string::npos);
+  // After its quiescent point it is.
+  m.reader_quiescent(reader.value());
+  r = m.add_point(Eigen::Vector3d(1, 0, 1), kf, 5);
+  ASSERT_TRUE(r.is_ok()) << r.status().message();
+  EXPECT_EQ(r.value(), b);
+  ASSERT_TRUE(m.read_point(b, v));
+  EXPECT_NE(v.generation, gen_b);  // a kept (id, generation) no longer names this point
+  EXPECT_EQ(v.p_w, Eigen::Vector3d(1, 0, 1));
+  EXPECT_EQ(v.ref_keypoint, 5u);
+  EXPECT_EQ(m.keyframe_point(kf, 1), kNoId);  // the old association is gone
+  EXPECT_EQ(m.keyframe_point(kf, 5), b);
+  EXPECT_EQ(m.num_points(), 3u);
+  EXPECT_EQ(m.live_points(), 3u);
+  EXPECT_EQ(m.counters().reused_point_slots, 1u);
+  EXPECT_EQ(m.counters().bad_points, 1u);
+  const PointStats st = m.point_stats(b);
+  EXPECT_EQ(st.observations, 1u);
+  EXPECT_EQ(st.visible, 1u);  // counters restart with the new occupant
+  EXPECT_EQ(st.found, 1u);
+  m.note_visible(b);
+  m.note_visible(b);
+  m.note_found(b);
+  EXPECT_EQ(m.point_stats(b).visible, 3u);
+  EXPECT_EQ(m.point_stats(b).found, 2u);
+
+  // A released reader no longer holds anything back.
+  m.set_point_bad(a);
+  m.release_reader(reader.value());
+  EXPECT_TRUE(m.add_point(Eigen::Vector3d(2, 0, 1), kf, 6).is_ok());
+}
+
+TEST(Map, ReaderRegistrationIsBounded) {
+  Map m(small_options());
+  std::vector<int> readers;
+  for (int i = 0; i < kMaxMapReaders; ++i) {
+    const Result<int> r = m.register_reader();
+    ASSERT_TRUE(r.is_ok());
+    readers.push_back(r.value());
+  }
+  EXPECT_FALSE(m.register_reader().is_ok());
+  m.release_reader(readers[1]);
+  const Result<int> again = m.register_reader();
+  ASSERT_TRUE(again.is_ok());
+  EXPECT_EQ(again.value(), readers[1]);
+}
+
+TEST(Map, RemovedKeyframeSlotIsReusedAndStaleIdsAreDetected) {
+  MapOptions o = small_options();
+  o.max_keyframes = 3;
+  Map m(o);
+  const Result<int> reader = m.register_reader();
+  ASSERT_TRUE(reader.is_ok());
+  const KfData d = make_kf(10, 1);
+  const KeyframeId k0 = add_kf(m, d, pose_at(0, 0), 10);
+  const KeyframeId k1 = add_kf(m, d, pose_at(1, 0), 11);
+  const KeyframeId k2 = add_kf(m, d, pose_at(2, 0), 12);
+  EXPECT_EQ(m.newest_keyframe(), k2);
+  const Generation g1 = m.keyframe_generation(k1);
+  ASSERT_NE(g1, kNoGeneration);
+  EXPECT_EQ(m.keyframe_serial(k1), 1u);
+  EXPECT_FALSE(m.remove_keyframe(k2, 1));  // the newest stays
+  EXPECT_FALSE(m.remove_keyframe(7, 1));   // unknown id
+  ASSERT_TRUE(m.remove_keyframe(k1, 1));
+  EXPECT_FALSE(m.remove_keyframe(k1, 1));  // already removed
+  EXPECT_FALSE(m.keyframe_is_live(k1));
+  EXPECT_EQ(m.keyframe_generation(k1), kNoGeneration);
+  EXPECT_TRUE(m.keyframe_keypoints(k1).empty());
+  EXPECT_EQ(m.keyframe_seq(k1), 0u);
+  SE3d T;
+  EXPECT_FALSE(m.keyframe_pose(k1, T));
+  EXPECT_EQ(m.keyframe_serial(k1), Map::kNoSerial);
+  EXPECT_EQ(m.live_keyframes(), 2u);
+
+  // Full until the registered reader passes a quiescent point.
+  KfData d2 = make_kf(4, 2);
+  Result<KeyframeId> r = m.add_keyframe(d2.input(pose_at(3, 0), 13));
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_NE(r.status().message().find("map.max_keyframes"), std::string::npos);
+  m.reader_quiescent(reader.value());
+  r = m.add_keyframe(d2.input(pose_at(3, 0), 13));
+  ASSERT_TRUE(r.is_ok()) << r.status().message();
+  EXPECT_EQ(r.value(), k1);  // the slot is reused ...
+  EXPECT_EQ(m.newest_keyframe(), k1);
+  const Generation g1b = m.keyframe_generation(k1);
+  EXPECT_NE(g1b, kNoGeneration);
+  EXPECT_NE(g1b, g1);  // ... and the generation tells the stale id from the new keyframe
+  EXPECT_EQ(m.keyframe_seq(k1), 13u);
+  EXPECT_EQ(m.keyframe_keypoints(k1).size(), 4u);
+  EXPECT_EQ(m.keyframe_descriptors(k1)[2], d2.desc[2]);
+  EXPECT_EQ(m.keyframe_serial(k1), 3u);
+  EXPECT_EQ(m.keyframes_added(), 4u);
+  for (std::uint32_t kp = 0; kp < 4; ++kp) EXPECT_EQ(m.keyframe_point(k1, kp), kNoId);
+  EXPECT_EQ(m.counters().reused_keyframe_slots, 1u);
+  EXPECT_EQ(m.counters().removed_keyframes, 1u);
+  EXPECT_TRUE(m.keyframe_is_live(k0));
+}
+
+TEST(Map, RemoveKeyframeUpdatesPointsAndEveryCovisibilityEdge) {
+  MapOptions o = small_options();
+  o.max_keypoints_per_keyframe = 16;
+  o.max_covisible_per_keyframe = 8;
+  Map m(o);
+  const KfData d = make_kf(16, 1);
+  std::vector<KeyframeId> kf;
+  for (int k = 0; k < 4; ++k) kf.push_back(add_kf(m, d, pose_at(k, 0.0), k));
+  // a: seen by 0, 1, 2; b: created by 1 (reference), seen by 2, 3; c: seen by 1 and 3 only.
+  const PointId a = add_pt(m, Eigen::Vector3d(0, 0, 4), kf[0], 0);
+  ASSERT_TRUE(m.add_observation(a, kf[1], 0));
+  ASSERT_TRUE(m.add_observation(a, kf[2], 0));
+  const PointId b = add_pt(m, Eigen::Vector3d(0.5, 0, 4), kf[1], 1);
+  ASSERT_TRUE(m.add_observation(b, kf[2], 3));
+  ASSERT_TRUE(m.add_observation(b, kf[3], 1));
+  const PointId c = add_pt(m, Eigen::Vector3d(1, 0, 4), kf[1], 2);
+  ASSERT_TRUE(m.add_observation(c, kf[3], 2));
+  for (const KeyframeId k : kf) m.update_covisibility(k);
+  EXPECT_EQ(m.covisibility_weight(kf[0], kf[1]), 1u);
+  EXPECT_EQ(m.covisibility_weight(kf[3], kf[1]), 2u);
+
+  std::uint32_t bad = 0;
+  ASSERT_TRUE(m.remove_keyframe(kf[1], 2, &bad));
+  EXPECT_EQ(bad, 1u);  // c is left with one observation
+  EXPECT_TRUE(m.point_is_bad(c));
+  EXPECT_EQ(m.keyframe_point(kf[3], 2), kNoId);
+  EXPECT_EQ(m.point_num_observations(a), 2u);
+  EXPECT_EQ(m.point_num_observations(b), 2u);
+  // b's reference moves to its oldest remaining observation.
+  PointView v;
+  ASSERT_TRUE(m.read_point(b, v));
+  EXPECT_EQ(v.ref_keyframe, kf[2]);
+  EXPECT_EQ(v.ref_keypoint, 3u);
+  // No list holds an edge to the removed keyframe.
+  for (const KeyframeId k : {kf[0], kf[2], kf[3]}) {
+    for (const auto& [id, w] : edges(m, k)) EXPECT_NE(id, kf[1]) << "in the list of " << k;
+  }
+  EXPECT_EQ(m.covisibility_weight(kf[0], kf[2]), 1u);  // untouched edges keep their weight
+  m.update_covisibility(kf[2]);
+  EXPECT_EQ(m.covisibility_weight(kf[2], kf[3]), 1u);  // b still shared
+}
+
 // ---- allocations ---------------------------------------------------------------------------
 
 TEST(Map, NoAllocationAfterConstruction) {
   ASSERT_TRUE(platform::alloc::counter_linked());
   MapOptions o = covis_options(4);
+  o.max_keyframes = 6;  // full, so that the slots freed below are reused
+  o.max_points = 30;
   Map m(o);
   const std::size_t bytes = m.memory_bytes();
   const KfData d = make_kf(40, 1);  // inputs built before counting
@@ -527,6 +696,15 @@ TEST(Map, NoAllocationAfterConstruction) {
   m.set_keyframe_depth(2, 3, 1.5F, 0.5F);
   m.set_point_bad(7);
   for (KeyframeId k = 0; k < 6; ++k) m.update_covisibility(k);
+  std::uint32_t orphaned = 0;
+  sink += m.remove_keyframe(4, 2, &orphaned) ? orphaned : 0;
+  sink += m.add_keyframe(d.input(pose_at(0.7, 0.1), 7)).is_ok() ? 1 : 0;      // reuses slot 4
+  sink += m.add_point(Eigen::Vector3d(0.3, 0.2, 3.0), 4, 0).is_ok() ? 1 : 0;  // reuses 7
+  m.note_visible(3);
+  m.note_found(3);
+  sink += m.point_stats(3).visible + m.point_generation(3) + m.keyframe_generation(4);
+  sink += m.newest_keyframe() + m.live_keyframes() + m.live_points() + m.keyframe_serial(4);
+  sink += m.counters().reused_keyframe_slots + m.counters().reused_point_slots;
   sink += m.point_observations(3, obs);
   sink += m.point_num_observations(3);
   sink += static_cast<std::uint64_t>(m.relative_pose(0, 3).translation().norm());
@@ -550,6 +728,8 @@ TEST(Map, NoAllocationAfterConstruction) {
   EXPECT_EQ(after - before, 0u) << "sink " << sink;
   EXPECT_EQ(m.num_keyframes(), 6u);
   EXPECT_EQ(m.num_points(), 30u);
+  EXPECT_EQ(m.counters().reused_keyframe_slots, 1u);
+  EXPECT_EQ(m.counters().reused_point_slots, 1u);
   EXPECT_GT(m.covisible_keyframes(0, cov), 0u);
   EXPECT_EQ(m.memory_bytes(), bytes);
 }

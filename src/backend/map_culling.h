@@ -1,0 +1,166 @@
+#pragma once
+/// @file map_culling.h
+/// Map culling, `spin_once(new keyframe) -> CullingReport`, run on the map's writer thread
+/// after each keyframe's local optimization, so that a long run keeps a bounded map
+/// (freed slots are reused by the map: map.h, slot reclamation).
+///
+/// Map points (ORB-SLAM's recent-point culling): a point created in one of the last
+/// `point_recent_keyframes` keyframes is freed when the tracker found it in fewer than
+/// `point_min_found_ratio` of the frames it projected into (Map::note_visible /
+/// note_found), or when it is `point_check_after_keyframes` keyframes old and has fewer than
+/// `point_min_observations` observations. Points with a large reprojection error are culled
+/// by the local bundle adjustment (local_ba.h).
+///
+/// Keyframes (ORB-SLAM's keyframe culling): a covisible keyframe of the new one is redundant
+/// when more than `keyframe_redundancy` of its map points are each observed by at least
+/// `redundant_observers` other keyframes at the same or a finer scale (pyramid level at most
+/// `redundant_level_slack` above its own). A redundant keyframe is removed (Map::
+/// remove_keyframe): its observations leave its points and points left with fewer than
+/// `point_min_observations` observations are freed. The first keyframe (the anchor of the
+/// map's gauge) and the newest `keep_newest_keyframes` keyframes are never removed.
+///
+/// At capacity: these rules alone do not bound the map (a keyframe whose points are seen by
+/// few others is never redundant), so when the live keyframes exceed `capacity_fraction` of
+/// map.max_keyframes, the live keyframe with the largest redundant-point fraction is removed
+/// (at most `max_capacity_removals` per pass, ranked in one scan), and when the live points
+/// exceed that fraction of map.max_points, the points with the fewest observations (older
+/// than `point_recent_keyframes`) are freed down to it. A run shorter than the capacity is not
+/// affected; a long one keeps its newest keyframes and the best-covered structure.
+///
+/// Bounded work per call: one pass over the point slots in use (a few array reads per slot)
+/// and, per covisible keyframe (at most map.max_covisible_per_keyframe), one pass over its
+/// keypoints and their points' observations; at capacity, one such pass over every live
+/// keyframe and two passes over the point slots. No allocation after construction.
+
+#include <cstdint>
+#include <vector>
+
+#include "core/options.h"
+#include "map/map.h"
+
+namespace mer::backend {
+
+/// Options of map culling (config section `culling`).
+struct CullingOptions {
+  bool enabled = true;                  ///< cull points and keyframes after each keyframe
+  double keyframe_redundancy = 0.9;     ///< redundant-point fraction that removes a keyframe
+  int redundant_observers = 3;          ///< other keyframes that make one of its points redundant
+  int redundant_level_slack = 1;        ///< their pyramid level may exceed its own by this much
+  int keep_newest_keyframes = 5;        ///< the newest keyframes are never removed
+  int point_recent_keyframes = 3;       ///< points at most this many keyframes old are checked
+  double point_min_found_ratio = 0.0;   ///< found / visible below this frees a recent point
+  int point_check_after_keyframes = 2;  ///< age from which the observation count is checked
+  int point_min_observations = 0;       ///< fewer observations free a point (0: auto by mode)
+  double capacity_fraction = 0.9;       ///< live share of map slots that triggers removals
+  int max_capacity_removals = 2;        ///< keyframes removed per pass at capacity
+
+  template <class V>
+  void visit(V& v) {
+    v.field("enabled", enabled,
+            "remove redundant keyframes and bad map points after each keyframe (their map "
+            "slots are reused)");
+    v.field("keyframe_redundancy", keyframe_redundancy,
+            "a keyframe whose fraction of redundant map points exceeds this is removed",
+            options::Range<double>{0.0, 1.0});
+    v.field("redundant_observers", redundant_observers,
+            "a map point is redundant in a keyframe when at least this many other keyframes "
+            "observe it at the same or a finer scale",
+            options::Range<int>{1, 64});
+    v.field("redundant_level_slack", redundant_level_slack,
+            "pyramid levels by which another keyframe's observation may be coarser and still "
+            "count for redundancy",
+            options::Range<int>{0, 32});
+    v.field("keep_newest_keyframes", keep_newest_keyframes,
+            "the newest keyframes (insertion order) are never removed; nor is the first one",
+            options::Range<int>{1, 1000});
+    v.field("point_recent_keyframes", point_recent_keyframes,
+            "map points created within this many keyframes are checked by the found-ratio "
+            "and observation rules",
+            options::Range<int>{0, 1000});
+    v.field("point_min_found_ratio", point_min_found_ratio,
+            "a recent map point found (tracked inlier) in fewer than this fraction of the "
+            "frames it projected into is removed (0: off; ORB-SLAM's 0.25 made the monocular "
+            "synthetic runs drift more)",
+            options::Range<double>{0.0, 1.0});
+    v.field("point_check_after_keyframes", point_check_after_keyframes,
+            "a recent map point this many keyframes old with fewer than point_min_observations "
+            "observations is removed",
+            options::Range<int>{1, 1000});
+    v.field("point_min_observations", point_min_observations,
+            "observations a map point needs to survive the observation rule and the removal "
+            "of a keyframe observing it (0: auto, 3 with monocular depth, 1 with metric "
+            "sensor depth; 1: only points left unobserved are removed)",
+            options::Range<int>{0, 255});
+    v.field("capacity_fraction", capacity_fraction,
+            "above this fraction of map.max_keyframes live keyframes, the most redundant ones "
+            "are removed; above this fraction of map.max_points live points, those with the "
+            "fewest observations (1: off)",
+            options::Range<double>{0.1, 1.0});
+    v.field("max_capacity_removals", max_capacity_removals,
+            "keyframes removed per pass when above capacity_fraction", options::Range<int>{1, 100});
+  }
+};
+
+/// What one culling pass did.
+struct CullingReport {
+  bool ran = false;
+  int checked_keyframes = 0;   ///< covisible keyframes examined for redundancy
+  int culled_keyframes = 0;    ///< keyframes removed
+  int culled_points = 0;       ///< points freed by the point rules (at capacity included)
+  int orphaned_points = 0;     ///< points freed because a removed keyframe left them too few views
+  int capacity_keyframes = 0;  ///< of culled_keyframes, removed at capacity
+  int capacity_points = 0;     ///< of culled_points, freed at capacity
+  double ms = 0.0;
+};
+
+/// Totals over a run (summary.json `map`).
+struct CullingTotals {
+  std::uint64_t runs = 0;
+  std::uint64_t culled_keyframes = 0;
+  std::uint64_t culled_points = 0;       ///< point rules + orphaned by keyframe removal
+  std::uint64_t orphaned_points = 0;     ///< of these, orphaned by keyframe removal
+  std::uint64_t capacity_keyframes = 0;  ///< keyframes removed at capacity
+  std::uint64_t capacity_points = 0;     ///< points freed at capacity
+  double total_ms = 0.0;
+  double max_ms = 0.0;
+};
+
+/// The culling stage (writer thread).
+class MapCuller {
+ public:
+  /// `metric_depth`: keyframe depth is metric sensor depth (rgbd mode), so a point seen by
+  /// one keyframe is already well placed; resolves `point_min_observations: 0`.
+  MapCuller(const CullingOptions& opts, map::Map& map, bool metric_depth = false);
+
+  /// One pass after keyframe `newest` was added (kNoId: culls points only).
+  CullingReport spin_once(map::KeyframeId newest);
+
+  /// Fraction of kf's map points that are redundant (see the file comment; 0 without
+  /// points); writer thread.
+  double redundancy(map::KeyframeId kf);
+
+  const CullingTotals& totals() const { return totals_; }
+  /// Options in effect (`point_min_observations` resolved).
+  const CullingOptions& options() const { return opts_; }
+
+ private:
+  int cull_points();
+  bool removable(map::KeyframeId kf) const;
+  bool remove(map::KeyframeId kf, CullingReport& rep);
+  void cull_at_capacity(CullingReport& rep);
+
+  CullingOptions opts_;
+  map::Map& map_;
+  CullingTotals totals_;
+  std::vector<map::CovisibleKeyframe> covis_;                   // max_covisible_per_keyframe
+  std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs_;  // max_observations_per_point
+  std::vector<std::uint32_t> obs_histogram_;                    // max_observations_per_point + 1
+  struct Ranked {
+    double redundancy = 0.0;
+    std::uint64_t serial = 0;
+    map::KeyframeId kf = map::kNoId;
+  };
+  std::vector<Ranked> ranked_;  // max_capacity_removals best removal candidates
+};
+
+}  // namespace mer::backend
