@@ -1,5 +1,9 @@
 #include "backend/ba_residuals.h"
 
+#include <algorithm>
+#include <cstdint>
+#include <vector>
+
 #include <Eigen/Geometry>
 
 #include "geometry/lie.h"
@@ -9,6 +13,18 @@ namespace {
 
 using RowMajor23 = Eigen::Matrix<double, 2, 3, Eigen::RowMajor>;
 using RowMajor24 = Eigen::Matrix<double, 2, 4, Eigen::RowMajor>;
+
+/// True once the run was asked to stop; a Jacobian evaluation then fills zeros (file comment).
+bool aborted(const std::atomic<bool>* abort, int num_residuals,
+             const std::vector<int32_t>& block_sizes, double* residuals, double** jacobians) {
+  if (abort == nullptr || !abort->load(std::memory_order_relaxed)) return false;
+  if (jacobians == nullptr) return true;
+  std::fill_n(residuals, num_residuals, 0.0);
+  for (std::size_t b = 0; b < block_sizes.size(); ++b) {
+    if (jacobians[b] != nullptr) std::fill_n(jacobians[b], num_residuals * block_sizes[b], 0.0);
+  }
+  return true;
+}
 
 Eigen::Matrix3d rotation(const double* q) {
   return Eigen::Map<const Eigen::Quaterniond>(q).normalized().toRotationMatrix();
@@ -48,6 +64,9 @@ bool RotationManifold::MinusJacobian(const double* /*x*/, double* jacobian) cons
 
 bool ReprojectionCost::Evaluate(double const* const* parameters, double* residuals,
                                 double** jacobians) const {
+  if (aborted(abort_, num_residuals(), parameter_block_sizes(), residuals, jacobians)) {
+    return jacobians != nullptr;
+  }
   const Eigen::Matrix3d R = rotation(parameters[0]);
   const Eigen::Map<const Eigen::Vector3d> t(parameters[1]);
   const Eigen::Map<const Eigen::Vector3d> X(parameters[2]);
@@ -79,28 +98,35 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
 
 bool DepthCost::Evaluate(double const* const* parameters, double* residuals,
                          double** jacobians) const {
+  if (aborted(abort_, num_residuals(), parameter_block_sizes(), residuals, jacobians)) {
+    return jacobians != nullptr;
+  }
   const Eigen::Matrix3d R = rotation(parameters[0]);
   const Eigen::Map<const Eigen::Vector3d> t(parameters[1]);
   const Eigen::Map<const Eigen::Vector3d> X(parameters[2]);
   const double s = parameters[3][0];
   const Eigen::Vector3d x_rot = R * X;
   residuals[0] = (x_rot.z() + t.z() - s * d_) * inv_sigma_;
+  residuals[1] = 0.0;
   if (jacobians == nullptr) return true;
-  if (jacobians[0] != nullptr) {  // row 2 of -[R X]x
+  // Row 0 (the second row is zero): d r / d delta is row 2 of -[R X]x.
+  if (jacobians[0] != nullptr) {
+    std::fill_n(jacobians[0], 8, 0.0);
     jacobians[0][0] = x_rot.y() * inv_sigma_;
     jacobians[0][1] = -x_rot.x() * inv_sigma_;
-    jacobians[0][2] = 0.0;
-    jacobians[0][3] = 0.0;
   }
   if (jacobians[1] != nullptr) {
-    jacobians[1][0] = 0.0;
-    jacobians[1][1] = 0.0;
+    std::fill_n(jacobians[1], 6, 0.0);
     jacobians[1][2] = inv_sigma_;
   }
   if (jacobians[2] != nullptr) {
+    std::fill_n(jacobians[2], 6, 0.0);
     for (int i = 0; i < 3; ++i) jacobians[2][i] = R(2, i) * inv_sigma_;
   }
-  if (jacobians[3] != nullptr) jacobians[3][0] = -d_ * inv_sigma_;
+  if (jacobians[3] != nullptr) {
+    jacobians[3][0] = -d_ * inv_sigma_;
+    jacobians[3][1] = 0.0;
+  }
   return true;
 }
 

@@ -4,7 +4,10 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <memory>
+#include <optional>
 #include <unordered_map>
+#include <utility>
 
 #include <Eigen/Geometry>
 #include <ceres/ceres.h>
@@ -20,35 +23,65 @@ constexpr double kMsPerS = 1000.0;
 constexpr std::size_t kMaxDenseSchurKeyframes = 64;  // larger windows: sparse Schur
 constexpr double kMinDepth = 1e-6;  // camera z below which an observation is not evaluable
 
-/// Stops a solve between iterations on an abort request or past the run's deadline.
-class StopCallback final : public ceres::IterationCallback {
+/// Polls the abort request and the run's deadline: at the window loading and problem
+/// building steps (check), as the solver's iteration callback (between iterations) and as its
+/// evaluation callback (an evaluation starts; the cost functions poll the request inside it).
+/// Times the stretches between polls (max_gap_ms).
+class StopCallback final : public ceres::IterationCallback, public ceres::EvaluationCallback {
  public:
   using Clock = std::chrono::steady_clock;
   StopCallback(const std::atomic<bool>& abort, std::atomic<int>& iterations, Clock::time_point t0,
-               Clock::time_point deadline, bool use_deadline)
+               Clock::time_point deadline, bool use_deadline,
+               const std::function<void(LocalBaPoll)>& observer)
       : abort_(abort),
         iterations_(iterations),
         last_poll_(t0),
         deadline_(deadline),
-        use_deadline_(use_deadline) {}
+        use_deadline_(use_deadline),
+        observer_(observer) {}
 
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
     if (summary.iteration > 0) iterations_.fetch_add(1, std::memory_order_relaxed);
+    // The cost of the best point so far. An evaluation cut by an abort leaves summary.cost
+    // meaningless; cost_change comes from the complete cost-only evaluation of the accepted
+    // step (see ba_residuals.h).
+    const bool cut = abort_.load(std::memory_order_relaxed);
+    if (summary.iteration == 0) {
+      cost_known = !cut;
+      cost = cut ? 0.0 : summary.cost;
+      if (first_solve) initial_cost = cost;
+    } else if (summary.step_is_successful) {
+      cost = cut ? cost - summary.cost_change : summary.cost;
+    }
     // SOLVER_TERMINATE_SUCCESSFULLY keeps the parameters of the last accepted iteration.
-    return check() ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
+    return check(LocalBaPoll::kIteration) ? ceres::SOLVER_TERMINATE_SUCCESSFULLY
+                                          : ceres::SOLVER_CONTINUE;
+  }
+  void PrepareForEvaluation(bool evaluate_jacobians, bool /*new_evaluation_point*/) override {
+    if (!in_solve) return;  // Problem::EvaluateResidualBlock outside a solve
+    if (observer_) {
+      observer_(evaluate_jacobians ? LocalBaPoll::kJacobianEvaluation
+                                   : LocalBaPoll::kCostEvaluation);
+    }
+    (void)mark();
+    in_evaluation_ = true;  // the cost functions poll from here on
   }
   /// Polls the abort request and the deadline; true (and sticky) once the run must stop.
-  bool check() {
+  bool check(LocalBaPoll where) {
+    if (observer_) observer_(where);
     const Clock::time_point now = mark();
     if (!aborted && abort_.load(std::memory_order_relaxed)) aborted = true;
     if (!timed_out && use_deadline_ && now >= deadline_) timed_out = true;
     return stop();
   }
-  /// Times the stretch since the previous poll (max_gap_ms).
+  /// Times the stretch since the previous poll (max_gap_ms); an evaluation counts as polled.
   Clock::time_point mark() {
     const Clock::time_point now = Clock::now();
-    max_gap_ms =
-        std::max(max_gap_ms, std::chrono::duration<double, std::milli>(now - last_poll_).count());
+    if (!in_evaluation_) {
+      max_gap_ms =
+          std::max(max_gap_ms, std::chrono::duration<double, std::milli>(now - last_poll_).count());
+    }
+    in_evaluation_ = false;
     last_poll_ = now;
     return now;
   }
@@ -57,7 +90,12 @@ class StopCallback final : public ceres::IterationCallback {
 
   bool aborted = false;
   bool timed_out = false;
+  bool in_solve = false;    // forward evaluation callbacks (set around ceres::Solve)
+  bool first_solve = true;  // iteration 0 gives initial_cost
   double max_gap_ms = 0.0;  // longest interval between two polls: the worst abort latency
+  bool cost_known = false;  // initial_cost and cost are valid (the first solve evaluated)
+  double initial_cost = 0.0;
+  double cost = 0.0;  // of the best point of the last solve
 
  private:
   const std::atomic<bool>& abort_;
@@ -65,6 +103,28 @@ class StopCallback final : public ceres::IterationCallback {
   Clock::time_point last_poll_;
   Clock::time_point deadline_;
   bool use_deadline_;
+  const std::function<void(LocalBaPoll)>& observer_;
+  bool in_evaluation_ = false;
+};
+
+/// Fixed-capacity storage of cost functions (Ceres' are neither copyable nor movable): one
+/// allocation instead of one per block.
+template <class T>
+class CostArena {
+ public:
+  explicit CostArena(std::size_t capacity)
+      : slots_(std::make_unique<std::optional<T>[]>(capacity)), capacity_(capacity) {}
+  /// nullptr when full.
+  template <class... Args>
+  T* emplace(Args&&... args) {
+    if (size_ == capacity_) return nullptr;
+    return &slots_[size_++].emplace(std::forward<Args>(args)...);
+  }
+
+ private:
+  std::unique_ptr<std::optional<T>[]> slots_;
+  std::size_t capacity_;
+  std::size_t size_ = 0;
 };
 
 struct PoseBlock {
@@ -134,9 +194,14 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   const auto t0 = std::chrono::steady_clock::now();
   const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
       std::chrono::duration<double, std::milli>(opts_.max_time_ms));
-  StopCallback stop(abort_, iterations_, t0, t0 + budget, budgeted);
+  StopCallback stop(abort_, iterations_, t0, t0 + budget, budgeted, observer_);
 
-  std::unordered_map<map::KeyframeId, PoseBlock> poses;
+  // Parameter blocks live in arrays, in insertion order: Ceres orders a group of the given
+  // elimination ordering by address, which must not depend on the heap for lockstep runs to
+  // be repeatable. The capacities are reserved: the blocks' addresses must not move.
+  std::vector<std::pair<map::KeyframeId, PoseBlock>> poses;
+  std::unordered_map<map::KeyframeId, std::size_t> pose_index;
+  poses.reserve(window.size() + static_cast<std::size_t>(std::max(0, opts_.max_fixed_keyframes)));
   auto load_pose = [&](map::KeyframeId id, bool fixed) {
     SE3d T_w_c;
     if (!map_.keyframe_pose(id, T_w_c)) return false;
@@ -146,27 +211,38 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     b.q = {q.x(), q.y(), q.z(), q.w()};
     b.t = {T_c_w.translation().x(), T_c_w.translation().y(), T_c_w.translation().z()};
     b.fixed = fixed;
-    poses.emplace(id, b);
+    if (poses.size() == poses.capacity() || !pose_index.emplace(id, poses.size()).second) {
+      return false;
+    }
+    poses.emplace_back(id, b);
     return true;
   };
   for (const map::KeyframeId id : window) (void)load_pose(id, false);
   if (poses.size() < 2) return rep;
 
   // 2. Points seen by the window, and the keyframes outside it that see them.
-  std::unordered_map<map::PointId, std::array<double, 3>> points;
+  std::vector<std::pair<map::PointId, std::array<double, 3>>> points;
+  std::unordered_map<map::PointId, std::size_t> point_index;
+  std::size_t max_points = 0;
+  for (const map::KeyframeId id : window) max_points += map_.keyframe_keypoints(id).size();
+  points.reserve(max_points);
   std::unordered_map<map::KeyframeId, int> outside;  // keyframe -> shared points
   std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(kMaxObservationsRead);
+  std::size_t max_blocks = 0;  // upper bound of the residual blocks (cost functions' storage)
   for (const map::KeyframeId id : window) {
+    if (stop.check(LocalBaPoll::kLoad)) break;
     const auto n = static_cast<std::uint32_t>(map_.keyframe_keypoints(id).size());
     for (std::uint32_t k = 0; k < n; ++k) {
       const map::PointId p = map_.keyframe_point(id, k);
-      if (p == map::kNoId || points.count(p) != 0) continue;
+      if (p == map::kNoId || point_index.count(p) != 0) continue;
       map::PointView pv;
       if (!map_.read_point(p, pv)) continue;
-      points.emplace(p, std::array<double, 3>{pv.p_w.x(), pv.p_w.y(), pv.p_w.z()});
+      point_index.emplace(p, points.size());
+      points.emplace_back(p, std::array<double, 3>{pv.p_w.x(), pv.p_w.y(), pv.p_w.z()});
       const std::size_t no = map_.point_observations(p, obs);
+      max_blocks += no;
       for (std::size_t o = 0; o < no; ++o) {
-        if (poses.count(obs[o].first) == 0) ++outside[obs[o].first];
+        if (pose_index.count(obs[o].first) == 0) ++outside[obs[o].first];
       }
     }
   }
@@ -183,33 +259,47 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   if (rep.fixed_keyframes == 0) {
     map::KeyframeId oldest = window.front();
     for (const map::KeyframeId id : window) {
-      if (poses.count(id) != 0 && map_.keyframe_seq(id) < map_.keyframe_seq(oldest)) oldest = id;
+      if (pose_index.count(id) != 0 && map_.keyframe_seq(id) < map_.keyframe_seq(oldest)) {
+        oldest = id;
+      }
     }
-    poses[oldest].fixed = true;
+    poses[pose_index.at(oldest)].second.fixed = true;
   }
 
-  // 3. Problem.
-  ceres::Problem::Options popts;
-  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  popts.enable_fast_removal = true;  // outlier removal is O(1) per block
-  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::Problem problem(popts);
+  // 3. Problem. The cost functions live in two arrays reserved up front (their addresses
+  //    must not move) rather than in one heap block each: building and destroying the problem
+  //    are stretches without a poll. Without fast removal the problem keeps no per-parameter
+  //    residual sets (half of its construction and destruction); removing an outlier is then
+  //    a scan of the residual blocks, done a few hundred times at most, polled.
+  const bool use_depth = depth_mode_ != "off";
+  CostArena<ReprojectionCost> reprojection_costs(max_blocks);
+  CostArena<DepthCost> depth_costs(use_depth ? max_blocks : 0);
   RotationManifold quat_manifold;
   ceres::HuberLoss huber(opts_.huber_sigmas);
+  ceres::Problem::Options popts;
+  popts.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.enable_fast_removal = false;
+  popts.evaluation_callback = &stop;
+  std::optional<ceres::Problem> problem_storage(std::in_place, popts);
+  ceres::Problem& problem = *problem_storage;
   std::vector<Observation> residuals;
-  const bool use_depth = depth_mode_ != "off";
+  residuals.reserve(max_blocks * (use_depth ? 2 : 1));
+  int until_poll = kBuildPollEvery;
   for (auto& [p, X] : points) {
+    if (stop.stop()) break;
     const std::size_t no = map_.point_observations(p, obs);
     for (std::size_t o = 0; o < no; ++o) {
-      auto it = poses.find(obs[o].first);
-      if (it == poses.end()) continue;
+      auto it = pose_index.find(obs[o].first);
+      if (it == pose_index.end()) continue;
       const auto kps = map_.keyframe_keypoints(obs[o].first);
       if (obs[o].second >= kps.size()) continue;
       const features::Keypoint& kp = kps[obs[o].second];
       const auto level = static_cast<std::size_t>(
           std::clamp<int>(kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
       const double inv_sigma = 1.0 / std::sqrt(static_cast<double>(level_sigma2_[level]));
-      PoseBlock& b = it->second;
+      PoseBlock& b = poses[it->second].second;
       // A point behind (or on) a camera that observes it cannot be evaluated: leave that
       // observation out (a solve whose first evaluation fails does nothing at all).
       const Eigen::Vector3d p_c =
@@ -219,7 +309,12 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
         ++rep.skipped_observations;
         continue;
       }
-      auto* cost = new ReprojectionCost(kp.x, kp.y, inv_sigma, K);
+      if (--until_poll <= 0) {
+        until_poll = kBuildPollEvery;
+        if (stop.check(LocalBaPoll::kBuild)) break;
+      }
+      ReprojectionCost* cost = reprojection_costs.emplace(kp.x, kp.y, inv_sigma, K, &abort_);
+      if (cost == nullptr) break;  // (cannot happen: max_blocks bounds the blocks)
       const ceres::ResidualBlockId rid =
           problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
       residuals.push_back({obs[o].first, p, rid, false});
@@ -228,13 +323,27 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       const float conf = map_.keyframe_depth_confidence(obs[o].first, obs[o].second);
       if (d <= 0.0F || conf <= 0.0F) continue;
       const double sigma = opts_.depth_sigma_rel * d / std::sqrt(static_cast<double>(conf));
-      auto* dcost = new DepthCost(d, 1.0 / sigma);
+      DepthCost* dcost = depth_costs.emplace(d, 1.0 / sigma, &abort_);
+      if (dcost == nullptr) continue;  // (cannot happen)
       const ceres::ResidualBlockId did =
           problem.AddResidualBlock(dcost, &huber, b.q.data(), b.t.data(), X.data(), &b.depth_scale);
       residuals.push_back({obs[o].first, p, did, true});
       ++rep.depth_edges;
     }
   }
+  // Aborted (or out of time) while building: nothing was optimized, the map is untouched.
+  auto stopped_early = [&] {
+    problem_storage.reset();  // its destruction is part of the latency
+    (void)stop.mark();
+    rep.ran = true;
+    rep.max_poll_gap_ms = stop.max_gap_ms;
+    rep.aborted = stop.aborted;
+    rep.timed_out = stop.timed_out;
+    rep.ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  };
+  if (stop.stop()) return stopped_early();
   for (auto& [id, b] : poses) {
     if (!problem.HasParameterBlock(b.q.data())) continue;
     problem.SetManifold(b.q.data(), &quat_manifold);
@@ -262,6 +371,22 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   sopts.num_threads = 1;
   sopts.logging_type = ceres::SILENT;
   sopts.callbacks.push_back(&stop);
+  // The Schur elimination ordering, given: points first, then the keyframe blocks. Ceres
+  // would otherwise find it itself (a graph search over all blocks in its preprocessing).
+  auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
+  for (auto& [p, X] : points) {
+    if (problem.HasParameterBlock(X.data())) ordering->AddElementToGroup(X.data(), 0);
+  }
+  for (auto& [id, b] : poses) {
+    if (!problem.HasParameterBlock(b.q.data())) continue;
+    ordering->AddElementToGroup(b.q.data(), 1);
+    ordering->AddElementToGroup(b.t.data(), 1);
+    if (problem.HasParameterBlock(&b.depth_scale)) {
+      ordering->AddElementToGroup(&b.depth_scale, 1);
+    }
+  }
+  sopts.linear_solver_ordering = ordering;
+  if (stop.check(LocalBaPoll::kSolve)) return stopped_early();
   auto remaining_s = [&] {
     const double used_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -269,29 +394,66 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   };
   if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
   ceres::Solver::Summary summary;
-  if (!stop.check()) ceres::Solve(sopts, &problem, &summary);
-  rep.initial_cost = summary.initial_cost;
+  auto solve = [&] {
+    stop.in_solve = true;
+    ceres::Solve(sopts, &problem, &summary);
+    stop.in_solve = false;
+    (void)stop.check(LocalBaPoll::kSolve);  // Ceres' post-processing is a stretch too
+  };
+  solve();
+  stop.first_solve = false;
+  rep.initial_cost = stop.initial_cost;
 
   // 4. Outliers out, solve again. Not after a pre-empted solve: unconverged residuals would
-  //    make inliers look like outliers; the progress made is written back as it is.
+  //    make inliers look like outliers; the progress made is written back as it is. All
+  //    blocks are checked before any is removed, so that an abort in between leaves no
+  //    partial classification.
   std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
+  std::vector<ceres::ResidualBlockId> outliers;
+  // (Past the deadline a started classification is finished, as the deadline is only
+  // checked between solves; an abort request ends it.)
+  const bool classify = !stop.stop();
+  until_poll = kClassifyPollEvery;
   for (const Observation& o : residuals) {
-    if (stop.stop()) break;
+    if (!classify) break;
+    if (--until_poll <= 0) {
+      until_poll = kClassifyPollEvery;
+      (void)stop.check(LocalBaPoll::kClassify);
+    }
+    if (stop.aborted) break;
     double cost = 0.0;
     const double chi2 = o.depth ? opts_.depth_outlier_chi2 : opts_.outlier_chi2;
-    if (!problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr) || 2.0 * cost > chi2) {
-      problem.RemoveResidualBlock(o.id);
+    const bool ok = problem.EvaluateResidualBlock(o.id, false, &cost, nullptr, nullptr);
+    if (!ok && abort_.load(std::memory_order_relaxed)) {  // the cost function saw the request
+      (void)stop.check(LocalBaPoll::kClassify);
+      break;
+    }
+    if (!ok || 2.0 * cost > chi2) {
+      outliers.push_back(o.id);
       if (!o.depth) ++point_obs[o.p].second;
-      ++rep.outliers;
     } else if (!o.depth) {
       ++point_obs[o.p].first;
     }
   }
-  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check()) {
-    if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
-    ceres::Solve(sopts, &problem, &summary);
+  if (stop.aborted || !classify) {
+    point_obs.clear();
+    outliers.clear();
   }
-  rep.final_cost = summary.final_cost;
+  rep.outliers = static_cast<int>(outliers.size());
+  until_poll = kRemovePollEvery;
+  for (const ceres::ResidualBlockId id : outliers) {
+    if (--until_poll <= 0) {
+      until_poll = kRemovePollEvery;
+      (void)stop.check(LocalBaPoll::kClassify);
+      if (stop.aborted) break;
+    }
+    problem.RemoveResidualBlock(id);
+  }
+  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check(LocalBaPoll::kSolve)) {
+    if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
+    solve();
+  }
+  rep.final_cost = stop.cost_known ? stop.cost : 0.0;
 
   // 5. Write back.
   for (const auto& [id, b] : poses) {
@@ -327,7 +489,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     }
     if (c.first > 0) map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
   }
-  (void)stop.mark();  // the write-back is part of the latency an abort can see
+  problem_storage.reset();  // its destruction is part of the latency an abort can see
+  (void)stop.mark();        // and so is the write-back
   rep.ran = true;
   rep.max_poll_gap_ms = stop.max_gap_ms;
   rep.aborted = stop.aborted;

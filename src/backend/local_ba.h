@@ -17,12 +17,21 @@
 ///
 /// Runs on the keyframe-creation thread, after the keyframe is inserted; it is the map's
 /// writer while it runs.
+///
+/// Abort latency (request_abort until the run returns): the request is polled every
+/// kBuildPollEvery residual blocks while the problem is built, by every cost function on every
+/// evaluation (see ba_residuals.h), between solver iterations and every few outlier checks.
+/// What is left unpolled is Ceres' preprocessing (given the elimination ordering, so it skips
+/// its own), one linear solve (fixed-size Schur specialization), the write-back and the
+/// problem's destruction (no per-block heap objects of ours): a few ms at the largest windows.
 
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "core/options.h"
@@ -102,9 +111,11 @@ struct LocalBaReport {
   double final_cost = 0.0;
   double ms = 0.0;
   int iterations = 0;            ///< solver iterations, all solves
-  double max_poll_gap_ms = 0.0;  ///< longest stretch without polling abort / deadline: the
-                                 ///< worst-case latency of request_abort in this run, ms
-  bool aborted = false;          ///< stopped by request_abort (the progress made is kept)
+  double max_poll_gap_ms = 0.0;  ///< longest stretch without polling abort / deadline (solver
+                                 ///< evaluations poll per residual block and count as polled):
+                                 ///< the worst-case latency of request_abort in this run, ms
+  bool aborted = false;          ///< stopped by request_abort: the progress made (the last
+                                 ///< completed iteration) is kept, outliers are not classified
   bool timed_out = false;        ///< stopped by the wall-time budget (the progress made is kept)
 };
 
@@ -120,6 +131,24 @@ struct LocalBaTotals {
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
+
+/// Where a run polls its abort request (LocalBundleAdjuster::set_poll_observer).
+enum class LocalBaPoll : std::uint8_t {
+  kLoad,                ///< reading the window from the map (per keyframe)
+  kBuild,               ///< building the problem (every kBuildPollEvery residual blocks)
+  kSolve,               ///< before a solve
+  kCostEvaluation,      ///< a solver cost-only evaluation starts (cost functions poll in it)
+  kJacobianEvaluation,  ///< a solver cost + Jacobian evaluation starts (cost functions poll)
+  kIteration,           ///< a solver iteration ended
+  kClassify,            ///< outlier checks and removals (kClassifyPollEvery, kRemovePollEvery)
+};
+
+/// Residual blocks added between two polls of the abort request while building the problem.
+inline constexpr int kBuildPollEvery = 256;
+/// Outlier checks between two polls of the abort request.
+inline constexpr int kClassifyPollEvery = 256;
+/// Outlier removals between two polls (each scans the problem's residual blocks).
+inline constexpr int kRemovePollEvery = 32;
 
 /// Local bundle adjustment stage: `spin_once(new keyframe) -> LocalBaReport`.
 class LocalBundleAdjuster {
@@ -141,8 +170,9 @@ class LocalBundleAdjuster {
   /// touched. Used offline (`mer_slam --final-ba`) and by loop closure. Writer thread only.
   LocalBaReport optimize_full(const geometry::Pinhole& K, int max_iterations);
 
-  /// Pre-empts the run in progress (any thread; lock-free): it stops after the current
-  /// solver iteration, keeps the progress made and returns. A run clears the request when it
+  /// Pre-empts the run in progress (any thread; lock-free): it stops at the next poll (see the
+  /// file comment; within the solver iteration in progress), keeps the progress made (the last
+  /// completed iteration) and returns. A run clears the request when it
   /// starts, so a request between runs is dropped: it only ever shortens the current run.
   void request_abort() noexcept { abort_.store(true, std::memory_order_relaxed); }
 
@@ -150,6 +180,13 @@ class LocalBundleAdjuster {
   int iterations_in_run() const noexcept { return iterations_.load(std::memory_order_relaxed); }
 
   const LocalBaTotals& totals() const { return totals_; }
+
+  /// Test hook: called on the running thread at every poll of the abort request, before the
+  /// request is read (a request made from the observer is seen by that very poll; at the start
+  /// of a solver evaluation, by the cost functions of that evaluation). Empty: none.
+  void set_poll_observer(std::function<void(LocalBaPoll)> observer) {
+    observer_ = std::move(observer);
+  }
 
  private:
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
@@ -163,6 +200,7 @@ class LocalBundleAdjuster {
   std::atomic<bool> abort_{false};
   std::atomic<int> iterations_{0};
   LocalBaTotals totals_;
+  std::function<void(LocalBaPoll)> observer_;
 };
 
 }  // namespace mer::backend

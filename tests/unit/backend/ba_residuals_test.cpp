@@ -3,6 +3,8 @@
 #include "backend/ba_residuals.h"
 
 #include <array>
+#include <atomic>
+#include <initializer_list>
 #include <random>
 #include <vector>
 
@@ -109,7 +111,39 @@ TEST(BaResiduals, DepthJacobiansMatchNumeric) {
   for (int trial = 0; trial < 20; ++trial) {
     const State st = random_state(rng);
     const DepthCost cost(2.7, 1.0 / 0.03);
-    check<1>(cost, st);
+    check<2>(cost, st);  // the second row is zero (one row-block size for Ceres' Schur solver)
+  }
+}
+
+// Once the abort flag is set a cost-only evaluation fails (Ceres rejects the step) and a
+// Jacobian evaluation succeeds with zeros (finite: Ceres checks them), see ba_residuals.h.
+TEST(BaResiduals, AbortFailsCostOnlyAndZeroesJacobianEvaluations) {
+  std::mt19937 rng(5);
+  const State st = random_state(rng);
+  std::atomic<bool> abort{false};
+  const ReprojectionCost reprojection(300.0, 200.0, 1.0, kK, &abort);
+  const DepthCost depth(2.7, 1.0 / 0.03, &abort);
+  const std::vector<const double*> params{st.q.data(), st.t.data(), st.X.data(), st.s.data()};
+  for (const ceres::CostFunction* cost :
+       std::initializer_list<const ceres::CostFunction*>{&reprojection, &depth}) {
+    std::array<double, 2> r{};
+    abort.store(false);
+    EXPECT_TRUE(cost->Evaluate(params.data(), r.data(), nullptr));
+    abort.store(true);
+    EXPECT_FALSE(cost->Evaluate(params.data(), r.data(), nullptr));
+    std::vector<std::vector<double>> J;
+    std::vector<double*> Jp;
+    for (const int size : cost->parameter_block_sizes()) {
+      J.emplace_back(static_cast<std::size_t>(2 * size), 1.0);
+      Jp.push_back(J.back().data());
+    }
+    r = {1.0, 1.0};
+    EXPECT_TRUE(cost->Evaluate(params.data(), r.data(), Jp.data()));
+    EXPECT_EQ(r[0], 0.0);
+    EXPECT_EQ(r[1], 0.0);
+    for (const auto& block : J) {
+      for (const double v : block) EXPECT_EQ(v, 0.0);
+    }
   }
 }
 

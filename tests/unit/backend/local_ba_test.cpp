@@ -281,6 +281,134 @@ TEST(LocalBa, AbortRequestStopsTheRunAfterTheIterationInProgress) {
               rep.iterations, rep.ms);
 }
 
+// Abort latency, in terms of polls: a request is seen by the very next poll, wherever the run
+// is. Polls are every kBuildPollEvery residual blocks while building the problem, at the start
+// of every solver evaluation (the cost functions poll the flag on every residual block) and
+// between iterations; no uninterrupted stretch of work is left but Ceres' preprocessing and one
+// linear solve (the figures in ms: mer_bench_frontend, bm_local_ba_abort).
+struct PollLog {
+  std::vector<LocalBaPoll> polls;
+  int request_at = -1;  // index in polls of the poll whose observer made the request
+};
+
+struct AbortFixture {
+  static constexpr int kBigPoints = 3000;
+  map::Map map{small_map(kBigPoints)};
+  Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
+  LocalBaOptions o = [] {
+    LocalBaOptions v = opts("metric");
+    v.max_iterations = 50;
+    v.window_keyframes = 8;
+    v.outlier_chi2 = 1e9;  // no outliers: one solve, comparable to an aborted run
+    v.depth_outlier_chi2 = 1e9;
+    return v;
+  }();
+  std::vector<SE3d> poses() const {
+    std::vector<SE3d> out;
+    for (const map::KeyframeId k : s.kf) {
+      SE3d T;
+      EXPECT_TRUE(map.keyframe_pose(k, T));
+      out.push_back(T);
+    }
+    return out;
+  }
+};
+
+// Runs with an observer that requests an abort at the `nth` poll of kind `where`.
+LocalBaReport run_aborting_at(AbortFixture& f, LocalBaPoll where, int nth, PollLog& log) {
+  LocalBundleAdjuster ba(f.o, f.map, {1.0F}, /*deterministic=*/true, true);
+  int seen = 0;
+  ba.set_poll_observer([&](LocalBaPoll p) {
+    log.polls.push_back(p);
+    if (p == where && ++seen == nth && log.request_at < 0) {
+      log.request_at = static_cast<int>(log.polls.size()) - 1;
+      ba.request_abort();
+    }
+  });
+  return ba.spin_once(f.s.kf.back(), kK);
+}
+
+TEST(LocalBa, AbortDuringProblemConstructionEndsTheRunAtThatPoll) {
+  AbortFixture f;
+  const std::vector<SE3d> before = f.poses();
+  PollLog log;
+  const LocalBaReport rep = run_aborting_at(f, LocalBaPoll::kBuild, 2, log);
+  ASSERT_GE(log.request_at, 0) << "the problem was built in fewer than two polls";
+  EXPECT_TRUE(rep.ran);
+  EXPECT_TRUE(rep.aborted);
+  EXPECT_EQ(rep.iterations, 0);
+  // No poll (no further work) after the one that saw the request.
+  EXPECT_EQ(static_cast<int>(log.polls.size()), log.request_at + 1);
+  // Nothing was optimized: the map is untouched.
+  const std::vector<SE3d> after = f.poses();
+  for (std::size_t k = 0; k < before.size(); ++k) {
+    EXPECT_TRUE(after[k].matrix() == before[k].matrix()) << "keyframe " << k;
+  }
+}
+
+// A request at the start of a cost-only evaluation (a candidate step) fails that evaluation:
+// the step is rejected and the next poll is the end of the iteration, which ends the run
+// (no Jacobian evaluation, no further linear solve); the last accepted point is kept.
+TEST(LocalBa, AbortDuringACostEvaluationRejectsTheStepAndEndsTheRun) {
+  AbortFixture f;
+  PollLog log;
+  const LocalBaReport rep = run_aborting_at(f, LocalBaPoll::kCostEvaluation, 3, log);
+  ASSERT_GE(log.request_at, 0) << "the solve converged in fewer than three steps";
+  EXPECT_TRUE(rep.aborted);
+  ASSERT_EQ(static_cast<int>(log.polls.size()), log.request_at + 3);
+  EXPECT_EQ(log.polls[static_cast<std::size_t>(log.request_at) + 1], LocalBaPoll::kIteration);
+  EXPECT_EQ(log.polls[static_cast<std::size_t>(log.request_at) + 2], LocalBaPoll::kSolve);
+  EXPECT_EQ(rep.culled_points, 0);
+  EXPECT_EQ(rep.outliers, 0);
+  // The run kept the two accepted steps: the same state as a run of as many iterations.
+  AbortFixture g;
+  g.o.max_iterations = rep.iterations - 1;  // the aborted iteration made no progress
+  LocalBundleAdjuster ref(g.o, g.map, {1.0F}, true, true);
+  ASSERT_TRUE(ref.spin_once(g.s.kf.back(), kK).ran);
+  const std::vector<SE3d> a = f.poses();
+  const std::vector<SE3d> b = g.poses();
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
+  }
+}
+
+// A request at the start of a Jacobian evaluation (after an accepted step) cuts it short; the
+// iteration ends at once and the accepted step is kept: the same state as a run that stopped
+// after that iteration.
+TEST(LocalBa, AbortDuringAJacobianEvaluationKeepsTheAcceptedStep) {
+  AbortFixture f;
+  PollLog log;
+  const LocalBaReport rep = run_aborting_at(f, LocalBaPoll::kJacobianEvaluation, 3, log);
+  ASSERT_GE(log.request_at, 0) << "the solve converged in fewer than two accepted steps";
+  EXPECT_TRUE(rep.aborted);
+  ASSERT_EQ(static_cast<int>(log.polls.size()), log.request_at + 3);
+  EXPECT_EQ(log.polls[static_cast<std::size_t>(log.request_at) + 1], LocalBaPoll::kIteration);
+  AbortFixture g;
+  g.o.max_iterations = rep.iterations;
+  LocalBundleAdjuster ref(g.o, g.map, {1.0F}, true, true);
+  ASSERT_TRUE(ref.spin_once(g.s.kf.back(), kK).ran);
+  const std::vector<SE3d> a = f.poses();
+  const std::vector<SE3d> b = g.poses();
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
+  }
+}
+
+// A request at the first evaluation (Ceres' iteration zero) ends the solve before any step:
+// the map keeps its poses.
+TEST(LocalBa, AbortDuringTheFirstEvaluationLeavesThePosesUnchanged) {
+  AbortFixture f;
+  const std::vector<SE3d> before = f.poses();
+  PollLog log;
+  const LocalBaReport rep = run_aborting_at(f, LocalBaPoll::kJacobianEvaluation, 1, log);
+  EXPECT_TRUE(rep.aborted);
+  EXPECT_EQ(rep.iterations, 0);
+  const std::vector<SE3d> after = f.poses();
+  for (std::size_t k = 0; k < before.size(); ++k) {
+    EXPECT_LT((after[k].matrix() - before[k].matrix()).norm(), 1e-12) << "keyframe " << k;
+  }
+}
+
 // Outside lockstep a run stops at the first iteration boundary past its wall-time budget
 // (here the problem is built so large that setup alone exceeds it) and says so.
 TEST(LocalBa, WallTimeBudgetBoundsTheRun) {
