@@ -1,6 +1,6 @@
 // Plane-sweep stereo (depth/plane_sweep.h) per keyframe: 640x480 room_orbit keyframes
 // resampled to 320x240, 4 past source frames (t - 0.4 .. t - 0.1 s, as in the pipeline),
-// one core. Argument: number of planes (32 is the default). Counters: min/p50/p99 of the
+// one core. Argument: number of planes (24 is the default). Counters: min/p50/p99 of the
 // compute() time (ms; min is the least disturbed by other processes on the machine), heap
 // allocations per compute() (0 in steady state) and the fraction of pixels with a depth.
 #include <algorithm>
