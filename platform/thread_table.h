@@ -13,9 +13,11 @@ namespace mer::platform {
 /// YAML overrides of core/priority to the copy.
 ///
 /// Priorities: capture is highest (it must never miss a buffer dequeue), then tracking,
-/// then the backend optimizer; depth, loop closure, output and the log writer run with
-/// normal scheduling. Capture and tracking are pinned to separate cores where the board
-/// has >= 4 cores, leaving core 0 to the kernel's interrupts and housekeeping.
+/// then the back end (local optimization); depth, loop closure, output and the log writer run
+/// with normal scheduling. The depth and back-end threads share the map's writer lock, a
+/// priority-inheritance mutex, so the back end never waits behind preempted depth work. Capture and
+/// tracking are pinned to separate cores where the board has >= 4 cores, leaving core 0 to the
+/// kernel's interrupts and housekeeping.
 struct BoardThreads {
   /// Camera dequeue / replay feeder.
   ThreadSpec capture;
@@ -25,9 +27,9 @@ struct BoardThreads {
   ThreadSpec output;
   /// LogDrain writer.
   ThreadSpec log;
-  /// Depth inference at keyframe creation (reserved).
+  /// Keyframe creation: depth inference and insertion into the map (normal scheduling).
   ThreadSpec depth;
-  /// Covisibility-graph optimization (reserved).
+  /// Back end: local bundle adjustment and map culling after each keyframe (below tracking).
   ThreadSpec backend;
   /// Loop detection and map fusion (reserved).
   ThreadSpec loop;

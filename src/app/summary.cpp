@@ -173,7 +173,11 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"depth_edges\": " << ba.depth_edges << ", \"aborted\": " << ba.aborted
     << ", \"timed_out\": " << ba.timed_out << ", \"overruns\": " << ba.overruns
     << ", \"mean_ms\": " << num(ba.runs ? ba.total_ms / static_cast<double>(ba.runs) : 0.0)
-    << ", \"max_ms\": " << num(ba.max_ms) << "},\n";
+    << ", \"max_ms\": " << num(ba.max_ms) << ", \"stale_writes\": " << ba.stale_writes
+    << ", \"lock_wait_mean_ms\": "
+    << num(ba.runs ? ba.lock_wait_ms / static_cast<double>(ba.runs) : 0.0)
+    << ", \"lock_wait_max_ms\": " << num(ba.max_lock_wait_ms)
+    << ", \"coalesced_keyframes\": " << st.backend_coalesced << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <unordered_map>
 #include <utility>
@@ -132,6 +133,14 @@ struct PoseBlock {
   std::array<double, 3> t{};
   double depth_scale = 1.0;  // s of the keyframe's local depth
   bool fixed = false;
+  map::Generation generation = map::kNoGeneration;  // occupant the pose was read from
+};
+
+struct PointBlock {
+  std::array<double, 3> X{};                           // optimized position
+  Eigen::Vector3d p_w_read = Eigen::Vector3d::Zero();  // read from the map (moved: not written)
+  map::Generation generation = map::kNoGeneration;     // occupant of the slot when read
+  std::size_t observations = 0;  // observations when read (new ones: not judged, not culled)
 };
 
 struct Observation {
@@ -155,6 +164,10 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
 
 LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
   if (!opts_.enabled) return {};
+  const auto t_wait = std::chrono::steady_clock::now();
+  std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
+  const double wait_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_wait).count();
   // Window: the new keyframe and its most covisible neighbours.
   std::vector<map::CovisibleKeyframe> covis(kMaxCovisibleRead);
   const std::size_t nc = map_.covisible_keyframes(kf, covis);
@@ -162,7 +175,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   for (std::size_t i = 0; i < nc && static_cast<int>(window.size()) < opts_.window_keyframes; ++i) {
     window.push_back(covis[i].id);
   }
-  const LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_);
+  LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, lock);
+  rep.lock_wait_ms += wait_ms;
   if (!rep.ran) return rep;
   ++totals_.runs;
   totals_.aborted += rep.aborted ? 1U : 0U;
@@ -173,21 +187,26 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);
   totals_.total_ms += rep.ms;
   totals_.max_ms = std::max(totals_.max_ms, rep.ms);
+  totals_.stale_writes += static_cast<std::uint64_t>(rep.stale_writes);
+  totals_.lock_wait_ms += rep.lock_wait_ms;
+  totals_.max_lock_wait_ms = std::max(totals_.max_lock_wait_ms, rep.lock_wait_ms);
   return rep;
 }
 
 LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations) {
+  std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
   std::vector<map::KeyframeId> window;
   const map::KeyframeId n = map_.num_keyframes();
   for (map::KeyframeId id = 0; id < n; ++id) {
     if (map_.keyframe_is_live(id)) window.push_back(id);
   }
-  return optimize(window, K, max_iterations, false);
+  return optimize(window, K, max_iterations, false, lock);
 }
 
 LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& window,
                                             const geometry::Pinhole& K, int max_iterations,
-                                            bool budgeted) {
+                                            bool budgeted,
+                                            std::unique_lock<platform::PiMutex>& lock) {
   LocalBaReport rep;
   abort_.store(false, std::memory_order_relaxed);
   iterations_.store(0, std::memory_order_relaxed);
@@ -211,6 +230,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     b.q = {q.x(), q.y(), q.z(), q.w()};
     b.t = {T_c_w.translation().x(), T_c_w.translation().y(), T_c_w.translation().z()};
     b.fixed = fixed;
+    b.generation = map_.keyframe_generation(id);
     if (poses.size() == poses.capacity() || !pose_index.emplace(id, poses.size()).second) {
       return false;
     }
@@ -221,7 +241,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   if (poses.size() < 2) return rep;
 
   // 2. Points seen by the window, and the keyframes outside it that see them.
-  std::vector<std::pair<map::PointId, std::array<double, 3>>> points;
+  std::vector<std::pair<map::PointId, PointBlock>> points;
   std::unordered_map<map::PointId, std::size_t> point_index;
   std::size_t max_points = 0;
   for (const map::KeyframeId id : window) max_points += map_.keyframe_keypoints(id).size();
@@ -238,7 +258,10 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       map::PointView pv;
       if (!map_.read_point(p, pv)) continue;
       point_index.emplace(p, points.size());
-      points.emplace_back(p, std::array<double, 3>{pv.p_w.x(), pv.p_w.y(), pv.p_w.z()});
+      points.emplace_back(p, PointBlock{{pv.p_w.x(), pv.p_w.y(), pv.p_w.z()},
+                                        pv.p_w,
+                                        pv.generation,
+                                        map_.point_num_observations(p)});
       const std::size_t no = map_.point_observations(p, obs);
       max_blocks += no;
       for (std::size_t o = 0; o < no; ++o) {
@@ -287,8 +310,9 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   std::vector<Observation> residuals;
   residuals.reserve(max_blocks * (use_depth ? 2 : 1));
   int until_poll = kBuildPollEvery;
-  for (auto& [p, X] : points) {
+  for (auto& [p, pt] : points) {
     if (stop.stop()) break;
+    std::array<double, 3>& X = pt.X;
     const std::size_t no = map_.point_observations(p, obs);
     for (std::size_t o = 0; o < no; ++o) {
       auto it = pose_index.find(obs[o].first);
@@ -361,6 +385,9 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   rep.points = static_cast<int>(points.size());
   rep.observations = static_cast<int>(residuals.size()) - rep.depth_edges;
   if (residuals.empty()) return rep;
+  // The problem holds copies (poses, positions, keypoints): the map is not needed while Ceres
+  // solves, so the other writer (the keyframe builder) may run meanwhile.
+  lock.unlock();
 
   ceres::Solver::Options sopts;
   // A local window's reduced camera system is small and dense; a full graph's is large and
@@ -374,8 +401,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   // The Schur elimination ordering, given: points first, then the keyframe blocks. Ceres
   // would otherwise find it itself (a graph search over all blocks in its preprocessing).
   auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
-  for (auto& [p, X] : points) {
-    if (problem.HasParameterBlock(X.data())) ordering->AddElementToGroup(X.data(), 0);
+  for (auto& [p, pt] : points) {
+    if (problem.HasParameterBlock(pt.X.data())) ordering->AddElementToGroup(pt.X.data(), 0);
   }
   for (auto& [id, b] : poses) {
     if (!problem.HasParameterBlock(b.q.data())) continue;
@@ -455,9 +482,21 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   }
   rep.final_cost = stop.cost_known ? stop.cost : 0.0;
 
-  // 5. Write back.
+  // 5. Write back, under the lock again. The builder may have inserted keyframes, points and
+  //    observations meanwhile and moved points it re-observed; culling of this thread does
+  //    not run between. A keyframe or point freed (or its slot reused: generation) is not
+  //    written; a point the builder moved keeps the builder's position (newer evidence), and
+  //    a point that gained observations is not culled (they were not judged).
+  const auto t_wait = std::chrono::steady_clock::now();
+  lock.lock();
+  rep.lock_wait_ms +=
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_wait).count();
   for (const auto& [id, b] : poses) {
     if (b.fixed || !problem.HasParameterBlock(b.q.data())) continue;
+    if (map_.keyframe_generation(id) != b.generation) {
+      ++rep.stale_writes;
+      continue;
+    }
     SE3d T_c_w = SE3d::Identity();
     T_c_w.linear() =
         Eigen::Quaterniond(b.q[3], b.q[0], b.q[1], b.q[2]).normalized().toRotationMatrix();
@@ -476,18 +515,39 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     }
   }
   const bool classified = !stop.stop() || !point_obs.empty();
-  for (const auto& [p, X] : points) {
+  for (const auto& [p, pt] : points) {
+    const std::array<double, 3>& X = pt.X;
+    map::PointView now;
+    if (!map_.read_point(p, now) || now.generation != pt.generation) {
+      ++rep.stale_writes;  // freed, or its slot reused, meanwhile
+      continue;
+    }
+    const bool moved = now.p_w != pt.p_w_read;
     if (!classified) {
-      map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+      if (moved) {
+        ++rep.stale_writes;
+      } else {
+        map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+      }
       continue;
     }
     const auto c = point_obs[p];
     if (c.first < opts_.min_inlier_observations && c.second > 0) {
+      if (map_.point_num_observations(p) != pt.observations) {
+        ++rep.stale_writes;
+        continue;
+      }
       map_.set_point_bad(p);
       ++rep.culled_points;
       continue;
     }
-    if (c.first > 0) map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+    if (c.first > 0) {
+      if (moved) {
+        ++rep.stale_writes;
+      } else {
+        map_.set_point_position(p, Eigen::Vector3d(X[0], X[1], X[2]));
+      }
+    }
   }
   problem_storage.reset();  // its destruction is part of the latency an abort can see
   (void)stop.mark();        // and so is the write-back

@@ -15,8 +15,15 @@
 /// optimized poses and positions are written back to the map (which the tracker reads at its next
 /// frame).
 ///
-/// Runs on the keyframe-creation thread, after the keyframe is inserted; it is the map's
-/// writer while it runs.
+/// Threading: in threaded mode it runs on the back-end thread (high priority, below tracking)
+/// for the newest keyframe the keyframe builder (depth thread) inserted; in lockstep, right
+/// after the builder on the same thread. It holds the map's writer lock (map.h) while it
+/// reads the window from the map and builds the problem, releases it while Ceres solves
+/// (the problem holds copies), and takes it again to write back: whatever the builder did
+/// meanwhile is respected (a keyframe or point freed or reused is skipped by generation, a
+/// point the builder moved keeps its new position, a point that gained observations is not
+/// culled; counted in `stale_writes`). In lockstep nothing changes in between, so results are
+/// the same as with one lock span.
 ///
 /// Abort latency (request_abort until the run returns): the request is polled every
 /// kBuildPollEvery residual blocks while the problem is built, by every cost function on every
@@ -29,6 +36,7 @@
 #include <atomic>
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -37,6 +45,7 @@
 #include "core/options.h"
 #include "geometry/camera_model.h"
 #include "map/map.h"
+#include "platform/pi_mutex.h"
 
 namespace mer::backend {
 
@@ -117,6 +126,9 @@ struct LocalBaReport {
   bool aborted = false;          ///< stopped by request_abort: the progress made (the last
                                  ///< completed iteration) is kept, outliers are not classified
   bool timed_out = false;        ///< stopped by the wall-time budget (the progress made is kept)
+  int stale_writes = 0;          ///< results not written back: the keyframe / point changed
+                                 ///< while the solver ran without the writer lock
+  double lock_wait_ms = 0.0;     ///< time spent waiting for the map's writer lock (in `ms`)
 };
 
 /// Totals over a run (summary.json `backend`).
@@ -130,6 +142,9 @@ struct LocalBaTotals {
   std::uint64_t overruns = 0;   ///< runs that took longer than max_time_ms
   double total_ms = 0.0;
   double max_ms = 0.0;
+  std::uint64_t stale_writes = 0;  ///< results dropped at write-back (LocalBaReport)
+  double lock_wait_ms = 0.0;       ///< total wait for the map's writer lock
+  double max_lock_wait_ms = 0.0;   ///< longest wait of one run
 };
 
 /// Where a run polls its abort request (LocalBundleAdjuster::set_poll_observer).
@@ -162,12 +177,14 @@ class LocalBundleAdjuster {
   /// The 3D-3D edge mode in effect (`auto` resolved): "off", "metric" or "scaled".
   const std::string& depth_edge_mode() const { return depth_mode_; }
 
-  /// Optimizes the window around `kf` with intrinsics `K`.
+  /// Optimizes the window around `kf` with intrinsics `K`. Takes the map's writer lock itself
+  /// (the caller must not hold it).
   LocalBaReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
 
   /// Full-graph optimization: every keyframe and map-point, the first keyframe held fixed
   /// (the gauge), no wall-time budget; `request_abort` still stops it. Totals are not
-  /// touched. Used offline (`mer_slam --final-ba`) and by loop closure. Writer thread only.
+  /// touched. Used offline (`mer_slam --final-ba`) and by loop closure. Takes the writer lock
+  /// (the caller must not hold it).
   LocalBaReport optimize_full(const geometry::Pinhole& K, int max_iterations);
 
   /// Pre-empts the run in progress (any thread; lock-free): it stops at the next poll (see the
@@ -189,8 +206,10 @@ class LocalBundleAdjuster {
   }
 
  private:
+  /// `lock` holds the writer lock on entry; released while Ceres solves, held on return.
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
-                         int max_iterations, bool budgeted);
+                         int max_iterations, bool budgeted,
+                         std::unique_lock<platform::PiMutex>& lock);
 
   LocalBaOptions opts_;
   map::Map& map_;

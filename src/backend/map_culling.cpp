@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <mutex>
 
 #include "platform/log_ring.h"
 
@@ -171,7 +172,8 @@ void MapCuller::cull_at_capacity(CullingReport& rep) {
 CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   CullingReport rep;
   if (!opts_.enabled) return rep;
-  const auto t0 = std::chrono::steady_clock::now();
+  const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
+  const auto t0 = std::chrono::steady_clock::now();  // after the wait: `ms` is the work
   rep.culled_points = cull_points();
 
   const std::size_t nc = newest == map::kNoId ? 0 : map_.covisible_keyframes(newest, covis_);

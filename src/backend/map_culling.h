@@ -1,8 +1,10 @@
 #pragma once
 /// @file map_culling.h
-/// Map culling, `spin_once(new keyframe) -> CullingReport`, run on the map's writer thread
-/// after each keyframe's local optimization, so that a long run keeps a bounded map
-/// (freed slots are reused by the map: map.h, slot reclamation).
+/// Map culling, `spin_once(new keyframe) -> CullingReport`, run after each keyframe's local
+/// optimization (threaded mode: on the back-end thread, around the newest keyframe inserted;
+/// lockstep: after the local BA on the same thread), so that a long run keeps a bounded map
+/// (freed slots are reused by the map: map.h, slot reclamation). spin_once holds the map's
+/// writer lock for the whole pass.
 ///
 /// Map points (ORB-SLAM's recent-point culling): a point created in one of the last
 /// `point_recent_keyframes` keyframes is freed when the tracker found it in fewer than
@@ -125,18 +127,19 @@ struct CullingTotals {
   double max_ms = 0.0;
 };
 
-/// The culling stage (writer thread).
+/// The culling stage (a map writer: see spin_once).
 class MapCuller {
  public:
   /// `metric_depth`: keyframe depth is metric sensor depth (rgbd mode), so a point seen by
   /// one keyframe is already well placed; resolves `point_min_observations: 0`.
   MapCuller(const CullingOptions& opts, map::Map& map, bool metric_depth = false);
 
-  /// One pass after keyframe `newest` was added (kNoId: culls points only).
+  /// One pass after keyframe `newest` was added (kNoId: culls points only). Takes the map's
+  /// writer lock (the caller must not hold it).
   CullingReport spin_once(map::KeyframeId newest);
 
   /// Fraction of kf's map points that are redundant (see the file comment; 0 without
-  /// points); writer thread.
+  /// points); the caller holds the map's writer lock (or is the only thread using the map).
   double redundancy(map::KeyframeId kf);
 
   const CullingTotals& totals() const { return totals_; }

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 
 #include "depth/external_depth.h"
 #include "depth/plane_sweep_depth.h"
@@ -276,6 +277,9 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
 }
 
 KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
+  // The whole pass is one writer section: depth inference reads writer-side state
+  // (observations of the neighbours' points) and the insertion must see it unchanged.
+  const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
   const auto t0 = std::chrono::steady_clock::now();
   KeyframeBuildReport rep;
   const auto n = static_cast<std::size_t>(job.num_keypoints);

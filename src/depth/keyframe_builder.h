@@ -6,8 +6,10 @@
 /// (robust median ratio) when the backend is not already in map units, inserts the keyframe,
 /// its observations of tracked map-points (3D-2D edges), new map-points from confident depth
 /// where no map-point is associated (3D-3D local points), and refreshes the covisibility
-/// (keyframe-keyframe edges). It is the map's single writer while it runs.
-/// Runs on its own low-priority thread in threaded mode; tracking never waits for it.
+/// (keyframe-keyframe edges). spin_once holds the map's writer lock (map.h) for the whole
+/// pass, depth inference included.
+/// Runs on its own low-priority thread in threaded mode (the local BA and culling run on the
+/// back-end thread); tracking never waits for it.
 
 #include <cstdint>
 #include <memory>
@@ -70,7 +72,7 @@ class KeyframeBuilder {
   /// `external` without a depth map source.
   Status init();
 
-  /// Creates one keyframe.
+  /// Creates one keyframe. Takes the map's writer lock (the caller must not hold it).
   KeyframeBuildReport spin_once(const map::KeyframeJob& job);
 
   const KeyframeBuildTotals& totals() const { return totals_; }

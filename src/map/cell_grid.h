@@ -1,9 +1,9 @@
 #pragma once
 /// @file cell_grid.h
 /// Spatial hash of map points: fixed-size open-addressing table of 3D cells keyed by integer
-/// cell coordinates, each cell a fixed array of point ids. One writer thread inserts,
-/// removes and moves ids; any number of readers look cells up and run frustum / radius
-/// queries without locks. Nothing grows after construction: a full cell or a full table is
+/// cell coordinates, each cell a fixed array of point ids. One writer at a time (the map's
+/// writer lock) inserts, removes and moves ids; any number of readers look cells up and run frustum
+/// / radius queries without locks. Nothing grows after construction: a full cell or a full table is
 /// counted (failures()), never silent.
 ///
 /// Concurrency design:
@@ -95,7 +95,7 @@ class CellGrid {
   /// Coordinates of a key (key != kNoCell).
   static CellCoord coord_of(CellKey key) noexcept;
 
-  // ---- writer thread ----
+  // ---- writer (one at a time: the map's writer lock) ----
   /// Adds `id` to cell `key`. False (and counted) when key is kNoCell, the cell is full or no
   /// table entry is free within the probe limit.
   bool insert(PointId id, CellKey key) noexcept;

@@ -6,8 +6,21 @@
 ///
 /// Threading contract
 /// ------------------
-///  - ONE writer thread (the mapping / back-end thread) calls every method of the "writer"
-///    group. They never block either (there is no lock at all).
+///  - One writer at a time (the writer lock): a thread calls methods of the "writer" group
+///    only while it holds writer_lock(), a priority-inheritance mutex (platform/pi_mutex.h).
+///    Writers are the keyframe builder (depth thread, low priority), the local bundle
+///    adjustment and culling (back-end thread, high priority) and offline steps (final BA).
+///    The lock orders them: each writer sees everything earlier holders wrote, so writer-side
+///    state needs no atomics. The writer methods themselves never block. The tracking thread
+///    NEVER takes the lock: it only reads (below). Its one-time map initialization (the first
+///    keyframes and points) writes without the lock before it queues any keyframe job, when
+///    no other writer can run yet; the job ring's release / acquire orders those writes
+///    before the keyframe builder's. A program with one writer thread only (unit tests,
+///    offline tools) need not take the lock.
+///  - A writer that drops the lock in the middle of its work (local BA releases it while
+///    Ceres solves) holds only ids with their generations across the gap and revalidates
+///    them when it takes the lock again: another writer may have added, moved or freed
+///    items meanwhile.
 ///  - Any number of reader threads (the real-time tracker) call the "reader" group, which is
 ///    lock-free with bounded work: it never waits for the writer.
 ///  - Every slot has a state word (generation << 1 | live). The writer fills a slot while it
@@ -29,7 +42,8 @@
 ///  - Reader-side statistics: note_visible() / note_found() add to per-point atomic counters
 ///    (relaxed); the writer reads them to cull points and resets them when a slot is reused.
 ///  - point_observations(), point_num_observations(), point_stats(), keyframe_serial(),
-///    relative_pose() and counters() read writer-side state: writer thread only. Readers use
+///    relative_pose() and counters() read writer-side state: writer-lock holders only (or a
+///    thread that is the only writer left, after the others are joined). Readers use
 ///    keyframe_point() / keyframe_pose() instead.
 ///  - Consistency between items is not promised: a reader may see a point's new position with
 ///    the old cell, a new observation before the descriptor update, etc. Each individual
@@ -110,6 +124,7 @@
 #include "map/map_types.h"
 #include "map/seqlock.h"
 #include "platform/cache_line.h"
+#include "platform/pi_mutex.h"
 
 namespace mer::map {
 
@@ -154,7 +169,7 @@ struct PointStats {
   std::uint64_t created_serial = 0;  ///< keyframes_added() when it was created
 };
 
-/// Counters of the map (writer thread).
+/// Counters of the map (writer-lock holder).
 struct MapCounters {
   std::uint32_t live_keyframes = 0;
   std::uint32_t live_points = 0;
@@ -180,7 +195,11 @@ class Map {
   Map(const Map&) = delete;
   Map& operator=(const Map&) = delete;
 
-  // ---------------------------------------------------------------- writer thread only --
+  // ------------------------------------------------ writer group: hold writer_lock() --
+  /// The writer lock (file comment): held by whoever calls the writer group; never taken by
+  /// the tracking thread. Priority inheritance bounds how long the high-priority back end
+  /// waits for the low-priority keyframe builder.
+  platform::PiMutex& writer_lock() noexcept { return writer_lock_; }
   /// Copies a keyframe into a free slot and publishes it as the newest keyframe. Errors: map
   /// full (names map.max_keyframes), too many keypoints (names
   /// map.max_keypoints_per_keyframe), span sizes that disagree.
@@ -434,6 +453,7 @@ class Map {
                           RetireQueue& retired, std::uint64_t& reused) noexcept;
 
   MapOptions opts_;
+  platform::PiMutex writer_lock_;
   std::uint32_t max_kf_;
   std::uint32_t max_pts_;
   std::uint32_t max_kp_;

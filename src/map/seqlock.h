@@ -47,16 +47,18 @@ inline T load_payload(const std::atomic<T>& a) noexcept {
   return a.load(std::memory_order_acquire);
 }
 
-/// Loads a payload word on the writer thread (it is the only writer: always consistent).
+/// Loads a payload word on the writer side (one writer at a time, ordered by the map's writer
+/// lock, so relaxed loads see the last write: always consistent).
 template <typename T>
 inline T load_own(const std::atomic<T>& a) noexcept {
   return a.load(std::memory_order_relaxed);
 }
 
-/// The sequence counter. One writer thread; any number of reader threads.
+/// The sequence counter. One writer at a time (writers are serialized by a lock outside this
+/// class: Map::writer_lock()); any number of reader threads.
 class SeqLock {
  public:
-  /// Opens a write section (writer thread only).
+  /// Opens a write section (the current writer only).
   void write_begin() noexcept {
     seq_.store(seq_.load(std::memory_order_relaxed) + 1U, std::memory_order_relaxed);
   }

@@ -17,8 +17,26 @@ namespace {
 
 constexpr double kMsToNs = 1e6;
 constexpr double kNsToS = 1e-9;
-constexpr std::int64_t kIdleWaitNs = 20'000'000;  // consumer re-checks stop flags this often
-constexpr std::int64_t kPoolRetryNs = 1'000'000;  // back-off when every buffer is in use
+constexpr std::int64_t kIdleWaitNs = 20'000'000;     // consumer re-checks stop flags this often
+constexpr std::int64_t kPoolRetryNs = 1'000'000;     // back-off when every buffer is in use
+constexpr std::int64_t kBackendRetryNs = 1'000'000;  // depth thread: back-end queue full
+
+/// What the depth thread hands to the back-end thread after each keyframe job.
+struct BackendJob {
+  map::KeyframeId kf = map::kNoId;                  ///< inserted keyframe, or the newest one
+  map::Generation generation = map::kNoGeneration;  ///< kf's occupant when queued
+  bool inserted = false;                            ///< kf was inserted by this job: run BA
+  std::uint64_t seq = 0;                            ///< frame of the job (latency trace)
+  geometry::Pinhole K;                              ///< intrinsics the frame was tracked with
+};
+
+/// Back-end work after draining its queue: local BA around the newest inserted keyframe,
+/// culling around the newest keyframe of any job.
+struct BackendBatch {
+  BackendJob ba;    ///< newest job that inserted a keyframe (ba.inserted false: none)
+  BackendJob cull;  ///< newest job
+  int skipped = 0;  ///< inserted keyframes drained without their own BA run
+};
 
 std::int64_t ms_to_ns(double ms) {
   return static_cast<std::int64_t>(ms * kMsToNs);
@@ -158,6 +176,7 @@ platform::BoardThreads Pipeline::resolve_threads() const {
   apply(t.capture, b.capture_core, b.capture_priority);
   apply(t.tracking, b.tracking_core, b.tracking_priority);
   apply(t.output, b.output_core, b.output_priority);
+  apply(t.backend, b.backend_core, b.backend_priority);
   return t;
 }
 
@@ -249,18 +268,29 @@ void Pipeline::run_final_ba() {
                rep.keyframes, rep.points, rep.observations, rep.iterations, rep.ms);
 }
 
-void Pipeline::create_keyframe(const map::KeyframeJob& job) {
+depth::KeyframeBuildReport Pipeline::build_keyframe(const map::KeyframeJob& job) {
   const std::int64_t t_kf = platform::monotonic_now_ns();
   const depth::KeyframeBuildReport rep = builder_->spin_once(job);
-  if (rep.ok) {
+  lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
+  return rep;
+}
+
+void Pipeline::optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole& K,
+                                 std::uint64_t seq, map::KeyframeId cull_kf) {
+  if (ba_kf != map::kNoId) {
     const std::int64_t t_ba = platform::monotonic_now_ns();
-    const backend::LocalBaReport ba = ba_->spin_once(rep.keyframe, job.K);
-    if (ba.ran) lat_local_ba_->record(job.seq, t_ba, platform::monotonic_now_ns() - t_ba);
+    const backend::LocalBaReport ba = ba_->spin_once(ba_kf, K);
+    if (ba.ran) lat_local_ba_->record(seq, t_ba, platform::monotonic_now_ns() - t_ba);
   }
+  (void)culler_->spin_once(cull_kf);
+}
+
+void Pipeline::create_keyframe(const map::KeyframeJob& job) {
+  const depth::KeyframeBuildReport rep = build_keyframe(job);
   // Culling frees slots for the next keyframes; after a refused insertion (map full) it
   // still runs around the newest keyframe.
-  (void)culler_->spin_once(rep.ok ? rep.keyframe : map_->newest_keyframe());
-  lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
+  optimize_and_cull(rep.ok ? rep.keyframe : map::kNoId, job.K, job.seq,
+                    rep.ok ? rep.keyframe : map_->newest_keyframe());
 }
 
 void Pipeline::count_result(const frontend::TrackingResult& r) {
@@ -377,8 +407,11 @@ Status Pipeline::run_threaded() {
   auto free_ring = std::make_unique<platform::SpscRing<std::uint32_t, 2 * kKeyframeJobs>>();
   for (std::uint32_t i = 0; i < kKeyframeJobs; ++i) (void)free_ring->try_push(i);
   platform::Notifier job_wake;
+  auto backend_ring = std::make_unique<platform::SpscRing<BackendJob, kBackendQueue>>();
+  platform::Notifier backend_wake;
   std::atomic<bool> capture_done{false};
   std::atomic<bool> tracking_done{false};
+  std::atomic<bool> depth_done{false};
   Status capture_status;
 
   auto capture_body = [&] {
@@ -462,7 +495,6 @@ Status Pipeline::run_threaded() {
             if (free_ring->try_pop(slot)) {
               tracker_->fill_keyframe_job(*frame, jobs_[slot]);
               (void)job_ring->try_push(slot);  // cannot be full: slots are fewer than its size
-              ba_->request_abort();  // a newer keyframe pre-empts the optimization in progress
               job_wake.notify();
             } else {
               tracker_->keyframe_not_queued();
@@ -487,12 +519,65 @@ Status Pipeline::run_threaded() {
     job_wake.notify_all();
   };
 
+  // Depth thread (low priority): keyframe creation proper, then the back end is told.
   auto depth_body = [&] {
     consume_loop<std::uint32_t>(
         job_wake, tracking_done, [&](std::uint32_t& slot) { return job_ring->try_pop(slot); },
         [&](std::uint32_t& slot) {
-          create_keyframe(jobs_[slot]);
+          const map::KeyframeJob& job = jobs_[slot];
+          const depth::KeyframeBuildReport rep = build_keyframe(job);
+          BackendJob b;
+          b.inserted = rep.ok;
+          // After a refused insertion (map full) culling still runs, around the newest.
+          b.kf = rep.ok ? rep.keyframe : map_->newest_keyframe();
+          b.generation = map_->keyframe_generation(b.kf);
+          b.seq = job.seq;
+          b.K = job.K;
           (void)free_ring->try_push(slot);
+          // The back end drains its whole queue at each wake-up, so a full queue means it is
+          // busy for a moment; this thread is not real-time and may wait (never while it
+          // holds the map's writer lock, so the back end cannot be waiting for it).
+          while (!backend_ring->try_push(b)) {
+            std::this_thread::sleep_for(std::chrono::nanoseconds(kBackendRetryNs));
+          }
+          // A newer keyframe in the map pre-empts the local BA in progress: its window is
+          // stale, and the run around the new keyframe can start now. (Not when the tracker
+          // queues the job: the new keyframe is not in the map until depth inference is
+          // done, so aborting then would only throw away optimization.)
+          if (rep.ok) ba_->request_abort();
+          backend_wake.notify();
+        });
+    depth_done.store(true, std::memory_order_release);
+    backend_wake.notify_all();
+  };
+
+  // Back-end thread (high priority, below tracking): local BA around the newest keyframe
+  // inserted, then culling. Keyframes queued behind one another need one run only.
+  auto backend_body = [&] {
+    consume_loop<BackendBatch>(
+        backend_wake, depth_done,
+        [&](BackendBatch& batch) {
+          BackendJob j;
+          if (!backend_ring->try_pop(j)) return false;
+          batch = BackendBatch{};
+          do {
+            if (j.inserted) {
+              if (batch.ba.inserted) ++batch.skipped;
+              batch.ba = j;
+            }
+            batch.cull = j;
+          } while (backend_ring->try_pop(j));
+          return true;
+        },
+        [&](BackendBatch& batch) {
+          stats_.backend_coalesced += static_cast<std::uint64_t>(batch.skipped);
+          // Ids are checked by generation: the culling of an earlier pass may have removed a
+          // keyframe queued behind (not the newest: the map never removes that one).
+          const bool ba_live =
+              batch.ba.inserted && map_->keyframe_generation(batch.ba.kf) == batch.ba.generation;
+          const bool cull_live = map_->keyframe_generation(batch.cull.kf) == batch.cull.generation;
+          optimize_and_cull(ba_live ? batch.ba.kf : map::kNoId, batch.ba.K, batch.ba.seq,
+                            cull_live ? batch.cull.kf : map_->newest_keyframe());
         });
   };
 
@@ -516,11 +601,13 @@ Status Pipeline::run_threaded() {
   };
 
   platform::RtThread output_thread;
+  platform::RtThread backend_thread;
   platform::RtThread depth_thread;
   platform::RtThread tracking_thread;
   platform::RtThread capture_thread;
   // Start consumers first so the capture ring is drained from the first frame.
   const bool ok = output_thread.start(threads.output, output_body) &&
+                  backend_thread.start(threads.backend, backend_body) &&
                   depth_thread.start(threads.depth, depth_body) &&
                   tracking_thread.start(threads.tracking, tracking_body) &&
                   capture_thread.start(threads.capture, capture_body);
@@ -530,10 +617,14 @@ Status Pipeline::run_threaded() {
     tracking_done.store(true);
     result_wake.notify_all();
     job_wake.notify_all();
+    depth_done.store(true);
+    backend_wake.notify_all();
   }
+  // Shutdown order: capture ends -> tracking drains -> depth drains -> back end drains.
   capture_thread.join();
   tracking_thread.join();
   depth_thread.join();
+  backend_thread.join();
   output_thread.join();
   if (!ok) return runtime_error("pipeline: could not start the stage threads");
 
@@ -541,7 +632,8 @@ Status Pipeline::run_threaded() {
       {&threads.capture, &capture_thread},
       {&threads.tracking, &tracking_thread},
       {&threads.output, &output_thread},
-      {&threads.depth, &depth_thread}};
+      {&threads.depth, &depth_thread},
+      {&threads.backend, &backend_thread}};
   for (const auto& [spec, t] : placed) {
     stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
                                              t->report().fully_applied(), t->report().warning});

@@ -3,15 +3,29 @@
 /// The one place that wires the stages:
 ///
 ///   capture (CameraSource) --OverwriteRing<slot>--> tracking --SpscRing<result>--> output
+///                                                      |
+///                                     SpscRing<keyframe job slot>
+///                                                      v
+///                 depth (keyframe builder) --SpscRing<keyframe id>--> back end (local BA,
+///                                                                     map culling)
 ///
 /// Threaded mode: each stage runs on its own RtThread (name, core and priority from the
 /// board's thread table). Capture never blocks: when tracking falls behind, the ring drops
 /// the oldest frame, hands its buffer back to the pool and counts it. Tracking never waits
-/// on output: a full result ring is counted as an output overflow.
+/// on output: a full result ring is counted as an output overflow, and never on keyframe
+/// creation: with every job slot busy the keyframe decision is deferred (counted).
+/// The depth thread (low priority) runs the keyframe builder (depth inference, insertion)
+/// and hands each new keyframe to the back-end thread (high priority, below tracking), which
+/// runs the local BA around the newest keyframe queued (older ones queued behind it need no
+/// run of their own) and culling. Both write the map, one at a time under its writer lock
+/// (map.h), a priority-inheritance mutex; tracking never takes it. A keyframe inserted while
+/// a local BA runs pre-empts it (LocalBundleAdjuster::request_abort). Shutdown: capture ends,
+/// then tracking, depth and the back end each drain their input before they end.
 ///
 /// Lockstep mode: the same stage objects run sequentially on the calling thread in a
-/// fixed order (capture -> tracking -> output), with a lockstep clock set to each frame's
-/// timestamp: the same input gives bit-identical trajectory/keyframes/frames files.
+/// fixed order (capture -> tracking -> keyframe builder -> local BA -> culling -> output),
+/// with a lockstep clock set to each frame's timestamp: the same input gives bit-identical
+/// trajectory/keyframes/frames files.
 
 #include <array>
 #include <atomic>
@@ -44,6 +58,8 @@ inline constexpr std::size_t kCaptureRingSize = 4;
 inline constexpr std::size_t kResultRingSize = 256;
 /// Keyframe jobs in flight between tracking and keyframe creation.
 inline constexpr std::size_t kKeyframeJobs = 8;
+/// Keyframes queued from the depth thread to the back-end thread (drained at each wake-up).
+inline constexpr std::size_t kBackendQueue = 2 * kKeyframeJobs;
 
 /// Everything the pipeline needs from the configuration.
 struct PipelineConfig {
@@ -115,6 +131,8 @@ struct PipelineStats {
   std::uint64_t frames_lost = 0;             ///< processed frames without a pose
   std::uint64_t keyframes = 0;               ///< keyframes alive in the map at the end
   std::uint64_t keyframes_deferred = 0;      ///< keyframe decisions retried: every job slot busy
+  std::uint64_t backend_coalesced = 0;       ///< keyframes whose local BA was left to a newer
+                                             ///< one queued behind it (threaded)
   std::uint64_t map_points = 0;              ///< map-points alive at the end
   std::uint64_t steady_frames = 0;           ///< frames tracked against an existing map
   frontend::TrackerCounters tracker;         ///< tracking counters
@@ -182,13 +200,19 @@ class Pipeline {
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   std::unique_ptr<backend::MapCuller> culler_;
+  /// Lockstep keyframe creation: build_keyframe, then optimize_and_cull.
   void create_keyframe(const map::KeyframeJob& job);
+  /// The keyframe builder (depth inference + insertion; latency `keyframe`).
+  depth::KeyframeBuildReport build_keyframe(const map::KeyframeJob& job);
+  /// Local BA around ba_kf (kNoId: none; latency `local_ba`), then culling around cull_kf.
+  void optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole& K, std::uint64_t seq,
+                         map::KeyframeId cull_kf);
   std::vector<map::KeyframeJob> jobs_;
   std::array<std::unique_ptr<platform::LatencyRecorder>,
              static_cast<std::size_t>(frontend::TrackStep::kCount)>
       lat_steps_;
-  std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;
-  std::unique_ptr<platform::LatencyRecorder> lat_local_ba_;
+  std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;  ///< builder only (depth thread)
+  std::unique_ptr<platform::LatencyRecorder> lat_local_ba_;  ///< one local BA run (back end)
   OutputStage output_;
   std::unique_ptr<platform::LatencyRecorder> lat_capture_;
   std::unique_ptr<platform::LatencyRecorder> lat_tracking_;

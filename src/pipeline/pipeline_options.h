@@ -56,6 +56,8 @@ struct BoardOptions {
   int tracking_priority = -1;           ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
   int output_core = -2;                 ///< CPU for the output thread (-1: any, -2: from profile)
   int output_priority = -1;             ///< priority of the output thread (-1: from profile)
+  int backend_core = -2;                ///< CPU for the back-end thread (-1: any, -2: from profile)
+  int backend_priority = -1;            ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
   bool lock_memory = false;  ///< mlockall() at start (needs CAP_IPC_LOCK or a memlock limit)
   double capture_budget_ms =
       15.0;  ///< capture stage budget per frame, ms (incl. synthetic rendering)
@@ -77,6 +79,12 @@ struct BoardOptions {
     v.field("output_core", output_core, "output thread CPU (-1 any, -2 profile)",
             options::Range<int>{-2, 1023});
     v.field("output_priority", output_priority, "output thread priority (0 normal, -1 profile)",
+            options::Range<int>{-1, 99});
+    v.field("backend_core", backend_core,
+            "back-end thread CPU (local BA, culling; -1 any, -2 profile)",
+            options::Range<int>{-2, 1023});
+    v.field("backend_priority", backend_priority,
+            "back-end SCHED_FIFO priority, keep it below tracking (0 normal, -1 profile)",
             options::Range<int>{-1, 99});
     v.field("lock_memory", lock_memory, "mlockall() at start");
     v.field("capture_budget_ms", capture_budget_ms, "capture budget per frame, ms",

@@ -409,6 +409,75 @@ TEST(LocalBa, AbortDuringTheFirstEvaluationLeavesThePosesUnchanged) {
   }
 }
 
+// The writer lock is free while Ceres solves, and the write-back respects what another
+// writer (the keyframe builder) did meanwhile: a point it freed stays freed, a point it moved
+// keeps its new position, a keyframe it removed is not written; the rest is written back.
+TEST(LocalBa, WriteBackRespectsAConcurrentWriter) {
+  constexpr int kBigPoints = 3000;
+  map::Map map(small_map(kBigPoints));
+  const Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
+  LocalBaOptions o = opts("metric");
+  o.max_iterations = 100000;
+  o.window_keyframes = 8;
+  o.max_time_ms = 1e5;
+  LocalBundleAdjuster ba(o, map, {1.0F}, /*deterministic=*/false, true);
+  SE3d T_newest_before;
+  ASSERT_TRUE(map.keyframe_pose(s.kf.back(), T_newest_before));
+  LocalBaReport rep;
+  std::atomic<bool> done{false};
+  std::thread worker([&] {
+    rep = ba.spin_once(s.kf.back(), kK);
+    done.store(true);
+  });
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (ba.iterations_in_run() < 2 && !done.load() && std::chrono::steady_clock::now() < give_up) {
+    std::this_thread::sleep_for(std::chrono::microseconds(100));
+  }
+  // Points observed by the removed keyframe 2 lose an observation; pick the freed and the
+  // moved point among those keyframe 2 does not see, so each is stale for one reason only.
+  const map::KeyframeId removed_kf = s.kf[2];
+  map::PointId freed = map::kNoId;
+  map::PointId moved = map::kNoId;
+  for (const map::PointId p : s.ids) {
+    if (p == map::kNoId) continue;
+    std::pair<map::KeyframeId, std::uint32_t> obs[16];
+    const std::size_t n = map.point_observations(p, obs);
+    bool seen_by_removed = false;
+    for (std::size_t i = 0; i < n; ++i) seen_by_removed |= obs[i].first == removed_kf;
+    if (seen_by_removed || n < 2) continue;
+    if (freed == map::kNoId) {
+      freed = p;
+    } else {
+      moved = p;
+      break;
+    }
+  }
+  ASSERT_NE(moved, map::kNoId);
+  const Eigen::Vector3d moved_to(0.25, -0.5, 3.5);
+  {
+    ASSERT_GE(ba.iterations_in_run(), 2) << "the solve ended too early: make it harder";
+    ASSERT_TRUE(map.writer_lock().try_lock()) << "the lock must be free while Ceres solves";
+    map.set_point_bad(freed);
+    map.set_point_position(moved, moved_to);
+    ASSERT_TRUE(map.remove_keyframe(removed_kf, 1));
+    map.writer_lock().unlock();
+  }
+  ba.request_abort();
+  worker.join();
+  ASSERT_TRUE(rep.ran);
+  EXPECT_TRUE(map.point_is_bad(freed)) << "a freed point must not be written back";
+  map::PointView pv;
+  ASSERT_TRUE(map.read_point(moved, pv));
+  EXPECT_EQ(pv.p_w, moved_to) << "the other writer's newer position is kept";
+  EXPECT_FALSE(map.keyframe_is_live(removed_kf));
+  EXPECT_GE(rep.stale_writes, 3);  // the freed point, the moved point, the removed keyframe
+  EXPECT_EQ(ba.totals().stale_writes, static_cast<std::uint64_t>(rep.stale_writes));
+  SE3d T_newest_after;
+  ASSERT_TRUE(map.keyframe_pose(s.kf.back(), T_newest_after));
+  EXPECT_GT((T_newest_after.translation() - T_newest_before.translation()).norm(), 1e-4)
+      << "the rest is written back";
+}
+
 // Outside lockstep a run stops at the first iteration boundary past its wall-time budget
 // (here the problem is built so large that setup alone exceeds it) and says so.
 TEST(LocalBa, WallTimeBudgetBoundsTheRun) {

@@ -32,6 +32,10 @@ TEST(ThreadTable, OrderingAndNameLengthOnEveryBoard) {
     const BoardThreads b = *find_board(name);
     EXPECT_GT(b.capture.priority, b.tracking.priority) << name;
     EXPECT_GT(b.tracking.priority, b.backend.priority) << name;
+    // The back end (local BA, culling) is real-time, above the depth thread it shares the
+    // map's writer lock with (priority inheritance lifts depth while the back end waits).
+    EXPECT_GT(b.backend.priority, b.depth.priority) << name;
+    EXPECT_EQ(b.backend.name, "mer_backend") << name;
     EXPECT_EQ(b.depth.priority, 0) << name;
     EXPECT_EQ(b.loop.priority, 0) << name;
     EXPECT_EQ(b.output.priority, 0) << name;
