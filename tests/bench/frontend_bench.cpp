@@ -133,6 +133,35 @@ void bm_tracking(benchmark::State& state) {
   state.counters["allocs_per_frame"] = static_cast<double>(allocs) / n;
 }
 
+// Tracks `seq` in `mode` from an empty map with default options, builds every keyframe the
+// tracker asks for and calls on_keyframe(ba, keyframe, K) after each insertion: the local BA
+// benchmarks' common set-up, run with the timing paused (on_keyframe resumes it as needed).
+template <class OnKeyframe>
+void for_each_keyframe(const Sequence& seq, const std::string& mode, OnKeyframe&& on_keyframe) {
+  map::MapOptions mo;
+  mo.max_keyframes = 128;
+  mo.max_points = 50000;
+  auto map = std::make_unique<map::Map>(mo);
+  frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height, mode,
+                            false);
+  (void)tracker.init();
+  const backend::LocalBaOptions ba_opts;
+  depth::KeyframeBuilder builder(depth::DepthOptions{}, mode, *map, tracker.level_sigma2(),
+                                 ba_opts.depth_sigma_rel);
+  (void)builder.init();
+  backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), false,
+                                  builder.metric_map_depth());
+  map::KeyframeJob job;
+  job.reserve(tracker.max_keypoints(), seq.width, seq.height);
+  for (const hal::Frame& f : seq.frames) {
+    const frontend::TrackingResult r = tracker.spin_once(f);
+    if (!r.keyframe_job) continue;
+    tracker.fill_keyframe_job(f, job);
+    const depth::KeyframeBuildReport rep = builder.spin_once(job);
+    if (rep.ok) on_keyframe(ba, rep.keyframe, job.K);
+  }
+}
+
 // Local BA per keyframe as mer_slam runs it outside lockstep (default options: 50 ms budget
 // per run, polled between solver iterations). Arg 0: RGB-D (metric 3D-3D edges), 1: mono.
 // Counters: run time p50/p99 (ms), runs over the budget, solver iterations per run, and the
@@ -146,36 +175,19 @@ void bm_local_ba(benchmark::State& state) {
   int overruns = 0;
   for (auto _ : state) {
     state.PauseTiming();
-    map::MapOptions mo;
-    mo.max_keyframes = 128;
-    mo.max_points = 50000;
-    auto map = std::make_unique<map::Map>(mo);
-    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height, mode,
-                              false);
-    (void)tracker.init();
-    const backend::LocalBaOptions ba_opts;
-    depth::KeyframeBuilder builder(depth::DepthOptions{}, mode, *map, tracker.level_sigma2(),
-                                   ba_opts.depth_sigma_rel);
-    (void)builder.init();
-    backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), false,
-                                    builder.metric_map_depth());
-    map::KeyframeJob job;
-    job.reserve(tracker.max_keypoints(), seq.width, seq.height);
-    for (const hal::Frame& f : seq.frames) {
-      const frontend::TrackingResult r = tracker.spin_once(f);
-      if (!r.keyframe_job) continue;
-      tracker.fill_keyframe_job(f, job);
-      const depth::KeyframeBuildReport rep = builder.spin_once(job);
-      if (!rep.ok) continue;
-      state.ResumeTiming();
-      const backend::LocalBaReport b = ba.spin_once(rep.keyframe, job.K);
-      state.PauseTiming();
-      if (!b.ran) continue;
-      run_ms.push_back(b.ms);
-      gap_ms.push_back(b.max_poll_gap_ms);
-      iterations += b.iterations;
-      overruns += b.ms > ba_opts.max_time_ms ? 1 : 0;
-    }
+    const double budget_ms = backend::LocalBaOptions{}.max_time_ms;
+    for_each_keyframe(
+        seq, mode,
+        [&](backend::LocalBundleAdjuster& ba, map::KeyframeId kf, const geometry::Pinhole& K) {
+          state.ResumeTiming();
+          const backend::LocalBaReport b = ba.spin_once(kf, K);
+          state.PauseTiming();
+          if (!b.ran) return;
+          run_ms.push_back(b.ms);
+          gap_ms.push_back(b.max_poll_gap_ms);
+          iterations += b.iterations;
+          overruns += b.ms > budget_ms ? 1 : 0;
+        });
     state.ResumeTiming();
   }
   const double n = run_ms.empty() ? 1.0 : static_cast<double>(run_ms.size());
@@ -206,49 +218,31 @@ void bm_local_ba_abort(benchmark::State& state) {
   std::uniform_real_distribution<double> delay_ms(0.0, kMaxAbortDelayMs);
   for (auto _ : state) {
     state.PauseTiming();
-    map::MapOptions mo;
-    mo.max_keyframes = 128;
-    mo.max_points = 50000;
-    auto map = std::make_unique<map::Map>(mo);
-    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height, mode,
-                              false);
-    (void)tracker.init();
-    const backend::LocalBaOptions ba_opts;
-    depth::KeyframeBuilder builder(depth::DepthOptions{}, mode, *map, tracker.level_sigma2(),
-                                   ba_opts.depth_sigma_rel);
-    (void)builder.init();
-    backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), false,
-                                    builder.metric_map_depth());
-    map::KeyframeJob job;
-    job.reserve(tracker.max_keypoints(), seq.width, seq.height);
-    for (const hal::Frame& f : seq.frames) {
-      const frontend::TrackingResult r = tracker.spin_once(f);
-      if (!r.keyframe_job) continue;
-      tracker.fill_keyframe_job(f, job);
-      const depth::KeyframeBuildReport rep = builder.spin_once(job);
-      if (!rep.ok) continue;
-      for (int t = 0; t < kAbortTrials; ++t) {
-        const auto delay = std::chrono::duration<double, std::milli>(delay_ms(rng));
-        std::atomic<std::int64_t> t_request{0};
-        std::atomic<bool> returned{false};
-        std::thread aborter([&] {
-          std::this_thread::sleep_for(delay);
-          if (returned.load()) return;
-          t_request.store(platform::monotonic_now_ns());
-          ba.request_abort();
+    for_each_keyframe(
+        seq, mode,
+        [&](backend::LocalBundleAdjuster& ba, map::KeyframeId kf, const geometry::Pinhole& K) {
+          for (int t = 0; t < kAbortTrials; ++t) {
+            const auto delay = std::chrono::duration<double, std::milli>(delay_ms(rng));
+            std::atomic<std::int64_t> t_request{0};
+            std::atomic<bool> returned{false};
+            std::thread aborter([&] {
+              std::this_thread::sleep_for(delay);
+              if (returned.load()) return;
+              t_request.store(platform::monotonic_now_ns());
+              ba.request_abort();
+            });
+            const backend::LocalBaReport b = ba.spin_once(kf, K);
+            const std::int64_t t_return = platform::monotonic_now_ns();
+            returned.store(true);
+            aborter.join();
+            const std::int64_t t_req = t_request.load();
+            if (t_req != 0 && t_req <= t_return) {
+              latency_ms.push_back(static_cast<double>(t_return - t_req) * kNsToMs);
+              if (b.aborted) max_gap_ms = std::max(max_gap_ms, b.max_poll_gap_ms);
+            }
+          }
+          (void)ba.spin_once(kf, K);
         });
-        const backend::LocalBaReport b = ba.spin_once(rep.keyframe, job.K);
-        const std::int64_t t_return = platform::monotonic_now_ns();
-        returned.store(true);
-        aborter.join();
-        const std::int64_t t_req = t_request.load();
-        if (t_req != 0 && t_req <= t_return) {
-          latency_ms.push_back(static_cast<double>(t_return - t_req) * kNsToMs);
-          if (b.aborted) max_gap_ms = std::max(max_gap_ms, b.max_poll_gap_ms);
-        }
-      }
-      (void)ba.spin_once(rep.keyframe, job.K);
-    }
     state.ResumeTiming();
   }
   state.counters["requests"] = static_cast<double>(latency_ms.size());

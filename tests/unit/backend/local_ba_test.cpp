@@ -328,6 +328,20 @@ LocalBaReport run_aborting_at(AbortFixture& f, LocalBaPoll where, int nth, PollL
   return ba.spin_once(f.s.kf.back(), kK);
 }
 
+// Expects the poses of `f` to equal those of a plain run (no abort) of `iterations` solver
+// iterations on a fresh copy of the fixture.
+void expect_state_of_a_run_of(const AbortFixture& f, int iterations) {
+  AbortFixture g;
+  g.o.max_iterations = iterations;
+  LocalBundleAdjuster ref(g.o, g.map, {1.0F}, true, true);
+  ASSERT_TRUE(ref.spin_once(g.s.kf.back(), kK).ran);
+  const std::vector<SE3d> a = f.poses();
+  const std::vector<SE3d> b = g.poses();
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
+  }
+}
+
 TEST(LocalBa, AbortDuringProblemConstructionEndsTheRunAtThatPoll) {
   AbortFixture f;
   const std::vector<SE3d> before = f.poses();
@@ -360,16 +374,9 @@ TEST(LocalBa, AbortDuringACostEvaluationRejectsTheStepAndEndsTheRun) {
   EXPECT_EQ(log.polls[static_cast<std::size_t>(log.request_at) + 2], LocalBaPoll::kSolve);
   EXPECT_EQ(rep.culled_points, 0);
   EXPECT_EQ(rep.outliers, 0);
-  // The run kept the two accepted steps: the same state as a run of as many iterations.
-  AbortFixture g;
-  g.o.max_iterations = rep.iterations - 1;  // the aborted iteration made no progress
-  LocalBundleAdjuster ref(g.o, g.map, {1.0F}, true, true);
-  ASSERT_TRUE(ref.spin_once(g.s.kf.back(), kK).ran);
-  const std::vector<SE3d> a = f.poses();
-  const std::vector<SE3d> b = g.poses();
-  for (std::size_t k = 0; k < a.size(); ++k) {
-    EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
-  }
+  // The run kept the two accepted steps: the same state as a run of as many iterations
+  // (the aborted iteration made no progress).
+  expect_state_of_a_run_of(f, rep.iterations - 1);
 }
 
 // A request at the start of a Jacobian evaluation (after an accepted step) cuts it short; the
@@ -383,15 +390,7 @@ TEST(LocalBa, AbortDuringAJacobianEvaluationKeepsTheAcceptedStep) {
   EXPECT_TRUE(rep.aborted);
   ASSERT_EQ(static_cast<int>(log.polls.size()), log.request_at + 3);
   EXPECT_EQ(log.polls[static_cast<std::size_t>(log.request_at) + 1], LocalBaPoll::kIteration);
-  AbortFixture g;
-  g.o.max_iterations = rep.iterations;
-  LocalBundleAdjuster ref(g.o, g.map, {1.0F}, true, true);
-  ASSERT_TRUE(ref.spin_once(g.s.kf.back(), kK).ran);
-  const std::vector<SE3d> a = f.poses();
-  const std::vector<SE3d> b = g.poses();
-  for (std::size_t k = 0; k < a.size(); ++k) {
-    EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
-  }
+  expect_state_of_a_run_of(f, rep.iterations);
 }
 
 // A request at the first evaluation (Ceres' iteration zero) ends the solve before any step:
