@@ -243,33 +243,59 @@ TEST(LocalBa, GrossDepthOutlierIsRemoved) {
   EXPECT_LT(after.rms_point_m, 0.01);
 }
 
+// A long local BA run (no iteration or time limit to speak of) on a worker thread, for tests
+// that act on it while it solves: start() launches it, wait_for_iterations() returns once it
+// has completed `n` iterations (or ended; bounded, so a hung solver fails the test, not CI).
+struct BackgroundRun {
+  static constexpr int kBigPoints = 3000;
+  map::Map map{small_map(kBigPoints)};
+  Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
+  LocalBaOptions o = [] {
+    LocalBaOptions v = opts("metric");
+    v.max_iterations = 100000;
+    v.window_keyframes = 8;
+    v.max_time_ms = 1e5;
+    return v;
+  }();
+  LocalBundleAdjuster ba{o, map, {1.0F}, /*deterministic=*/false, true};
+  LocalBaReport rep;
+  std::atomic<bool> done{false};
+  std::thread worker;
+
+  void start() {
+    worker = std::thread([this] {
+      rep = ba.spin_once(s.kf.back(), kK);
+      done.store(true);
+    });
+  }
+  void wait_for_iterations(int n) {
+    const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+    while (ba.iterations_in_run() < n && !done.load() &&
+           std::chrono::steady_clock::now() < give_up) {
+      std::this_thread::sleep_for(std::chrono::microseconds(100));
+    }
+  }
+  ~BackgroundRun() {  // a test that failed before stopping the run
+    if (worker.joinable()) {
+      ba.request_abort();
+      worker.join();
+    }
+  }
+};
+
 // A request from another thread stops a run after the solver iteration in progress: at
 // most one more iteration, the progress made is kept (not discarded, not classified into
 // outliers), and the run reports it. How long one iteration takes, i.e. the latency of an
 // abort in ms, is measured by mer_bench_backend (Release), not asserted here.
 TEST(LocalBa, AbortRequestStopsTheRunAfterTheIterationInProgress) {
-  constexpr int kBigPoints = 3000;
-  map::Map map(small_map(kBigPoints));
-  const Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
-  LocalBaOptions o = opts("metric");
-  o.max_iterations = 100000;
-  o.window_keyframes = 8;
-  o.max_time_ms = 1e5;
-  LocalBundleAdjuster ba(o, map, {1.0F}, /*deterministic=*/false, true);
-  LocalBaReport rep;
-  std::atomic<bool> done{false};
-  std::thread worker([&] {
-    rep = ba.spin_once(s.kf.back(), kK);
-    done.store(true);
-  });
-  // Wait for two completed iterations (bounded: a hung solver fails the test, not CI).
-  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-  while (ba.iterations_in_run() < 2 && !done.load() && std::chrono::steady_clock::now() < give_up) {
-    std::this_thread::sleep_for(std::chrono::microseconds(100));
-  }
+  BackgroundRun run;
+  LocalBundleAdjuster& ba = run.ba;
+  const LocalBaReport& rep = run.rep;
+  run.start();
+  run.wait_for_iterations(2);
   const int at_request = ba.iterations_in_run();
   ba.request_abort();
-  worker.join();
+  run.worker.join();
   ASSERT_GE(at_request, 2) << "the solve ended before two iterations: make the problem harder";
   EXPECT_TRUE(rep.ran);
   EXPECT_TRUE(rep.aborted) << "the solve converged before the request was seen";
@@ -412,26 +438,15 @@ TEST(LocalBa, AbortDuringTheFirstEvaluationLeavesThePosesUnchanged) {
 // writer (the keyframe builder) did meanwhile: a point it freed stays freed, a point it moved
 // keeps its new position, a keyframe it removed is not written; the rest is written back.
 TEST(LocalBa, WriteBackRespectsAConcurrentWriter) {
-  constexpr int kBigPoints = 3000;
-  map::Map map(small_map(kBigPoints));
-  const Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
-  LocalBaOptions o = opts("metric");
-  o.max_iterations = 100000;
-  o.window_keyframes = 8;
-  o.max_time_ms = 1e5;
-  LocalBundleAdjuster ba(o, map, {1.0F}, /*deterministic=*/false, true);
+  BackgroundRun run;
+  map::Map& map = run.map;
+  const Scene& s = run.s;
+  LocalBundleAdjuster& ba = run.ba;
+  const LocalBaReport& rep = run.rep;
   SE3d T_newest_before;
   ASSERT_TRUE(map.keyframe_pose(s.kf.back(), T_newest_before));
-  LocalBaReport rep;
-  std::atomic<bool> done{false};
-  std::thread worker([&] {
-    rep = ba.spin_once(s.kf.back(), kK);
-    done.store(true);
-  });
-  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(60);
-  while (ba.iterations_in_run() < 2 && !done.load() && std::chrono::steady_clock::now() < give_up) {
-    std::this_thread::sleep_for(std::chrono::microseconds(100));
-  }
+  run.start();
+  run.wait_for_iterations(2);
   // Points observed by the removed keyframe 2 lose an observation; pick the freed and the
   // moved point among those keyframe 2 does not see, so each is stale for one reason only.
   const map::KeyframeId removed_kf = s.kf[2];
@@ -462,7 +477,7 @@ TEST(LocalBa, WriteBackRespectsAConcurrentWriter) {
     map.writer_lock().unlock();
   }
   ba.request_abort();
-  worker.join();
+  run.worker.join();
   ASSERT_TRUE(rep.ran);
   EXPECT_TRUE(map.point_is_bad(freed)) << "a freed point must not be written back";
   map::PointView pv;
