@@ -112,13 +112,20 @@ double KeyframePolicy::spread(const KeyframeEvidence& e) {
 
 KeyframeReason KeyframePolicy::decide(const KeyframeEvidence& e) {
   last_spread_ = spread(e);
+  last_baseline_ratio_ = -1.0;
   last_kl_ = (have_previous_ && e.histogram != nullptr)
                  ? KeyframeHistogram::kl_divergence(*e.histogram, previous_, opts_.kl_epsilon)
                  : 0.0;
   const double since_s = static_cast<double>(e.t_ns - t_keyframe_ns_) * kNsToS;
   if (since_s >= opts_.max_spacing_s) return KeyframeReason::kMaxSpacing;
   if (since_s < opts_.min_spacing_s) return KeyframeReason::kNone;
-  if (e.inliers < opts_.min_inliers || e.inliers < opts_.min_inlier_ratio * inliers_at_keyframe_) {
+  if (e.inliers < opts_.min_inliers) return KeyframeReason::kTooFewInliers;
+  last_baseline_ratio_ =
+      e.median_depth > 0.0 ? (e.centre_w - centre_at_keyframe_).norm() / e.median_depth : -1.0;
+  if (last_baseline_ratio_ >= 0.0 && last_baseline_ratio_ < opts_.min_baseline_ratio) {
+    return KeyframeReason::kNone;
+  }
+  if (e.inliers < opts_.min_inlier_ratio * inliers_at_keyframe_) {
     return KeyframeReason::kTooFewInliers;
   }
   if (last_spread_ < opts_.min_spread) return KeyframeReason::kPoorSpread;
@@ -130,6 +137,7 @@ void KeyframePolicy::on_frame(const KeyframeEvidence& e, bool became_keyframe) {
   if (became_keyframe) {
     t_keyframe_ns_ = e.t_ns;
     inliers_at_keyframe_ = e.inliers;
+    centre_at_keyframe_ = e.centre_w;
   }
   if (e.histogram != nullptr) {
     previous_ = *e.histogram;
@@ -137,9 +145,11 @@ void KeyframePolicy::on_frame(const KeyframeEvidence& e, bool became_keyframe) {
   }
 }
 
-void KeyframePolicy::reset(int inliers, std::int64_t t_ns) {
+void KeyframePolicy::reset(int inliers, std::int64_t t_ns, const Eigen::Vector3d& centre_w) {
   t_keyframe_ns_ = t_ns;
   inliers_at_keyframe_ = inliers;
+  centre_at_keyframe_ = centre_w;
+  last_baseline_ratio_ = -1.0;
   have_previous_ = false;
   last_kl_ = 0.0;
 }

@@ -9,11 +9,19 @@
 ///   `kl_threshold` (tracked points suddenly belong to other keyframes: a revisit);
 /// - `max_spacing`: `max_spacing_s` since the last keyframe.
 /// Spacing is in time (frame timestamps), so the policy behaves the same at 10 and 30 Hz.
+/// Parallax gate (monocular): while the camera has moved less than `min_baseline_ratio` of the
+/// tracked points' median depth since the last keyframe, only the absolute inlier count (and
+/// `max_spacing`) may fire. A keyframe closer than that to the previous one adds points
+/// triangulated under little parallax and poses the back end can barely separate (rotation
+/// against sideways translation); the gate is in units of the scene, not of time, so it
+/// passes at once for a car at 10 Hz and waits a few frames for a slow handheld camera.
 /// The histogram has a fixed number of bins; keyframes beyond it share one "other" bin.
 
 #include <array>
 #include <cstdint>
 #include <span>
+
+#include <Eigen/Core>
 
 #include "core/options.h"
 
@@ -31,6 +39,7 @@ struct KeyframePolicyOptions {
   double max_spacing_s = 1.5;  ///< a keyframe at least this often while tracking, s
   double kl_threshold = 0.8;   ///< KL divergence jump (nats) that fires a keyframe
   double kl_epsilon = 1e-3;    ///< probability floor of an empty histogram bin
+  double min_baseline_ratio = 0.03;  ///< below this baseline / median depth only the count fires
 
   template <class V>
   void visit(V& v) {
@@ -55,6 +64,10 @@ struct KeyframePolicyOptions {
             options::Range<double>{0.0, 100.0});
     v.field("kl_epsilon", kl_epsilon, "probability floor of an empty histogram bin",
             options::Range<double>{1e-9, 0.1});
+    v.field("min_baseline_ratio", min_baseline_ratio,
+            "camera travel since the last keyframe, over the tracked points' median depth, "
+            "below which only min_inliers (and max_spacing) may fire (monocular; 0: off)",
+            options::Range<double>{0.0, 10.0});
   }
 };
 
@@ -100,11 +113,13 @@ class KeyframeHistogram {
 
 /// Everything the policy looks at for one tracked frame.
 struct KeyframeEvidence {
-  std::int64_t t_ns = 0;                         ///< frame timestamp
-  int inliers = 0;                               ///< tracked inliers
-  std::span<const float> inlier_x;               ///< inlier pixel columns
-  std::span<const float> inlier_y;               ///< inlier pixel rows
-  const KeyframeHistogram* histogram = nullptr;  ///< tracked points over keyframes
+  std::int64_t t_ns = 0;                               ///< frame timestamp
+  int inliers = 0;                                     ///< tracked inliers
+  std::span<const float> inlier_x;                     ///< inlier pixel columns
+  std::span<const float> inlier_y;                     ///< inlier pixel rows
+  const KeyframeHistogram* histogram = nullptr;        ///< tracked points over keyframes
+  Eigen::Vector3d centre_w = Eigen::Vector3d::Zero();  ///< camera centre in the world
+  double median_depth = 0.0;  ///< tracked points' median depth (<= 0: unknown, no gate)
 };
 
 /// The keyframe decision (state: spacing, previous histogram, inliers at the last keyframe).
@@ -116,12 +131,15 @@ class KeyframePolicy {
   KeyframeReason decide(const KeyframeEvidence& e);
   /// Records the outcome of the frame the last decide() was about.
   void on_frame(const KeyframeEvidence& e, bool became_keyframe);
-  /// Resets after (re)initialization: the init keyframe (at `t_ns`) counts as a keyframe
-  /// with `inliers`.
-  void reset(int inliers, std::int64_t t_ns = 0);
+  /// Resets after (re)initialization: the init keyframe (at `t_ns`, camera centre
+  /// `centre_w`) counts as a keyframe with `inliers`.
+  void reset(int inliers, std::int64_t t_ns = 0,
+             const Eigen::Vector3d& centre_w = Eigen::Vector3d::Zero());
 
   double last_kl() const { return last_kl_; }
   double last_spread() const { return last_spread_; }
+  /// Baseline / median depth of the last decide() (negative: unknown).
+  double last_baseline_ratio() const { return last_baseline_ratio_; }
 
  private:
   double spread(const KeyframeEvidence& e);
@@ -131,6 +149,8 @@ class KeyframePolicy {
   int height_;
   std::int64_t t_keyframe_ns_ = 0;
   int inliers_at_keyframe_ = 0;
+  Eigen::Vector3d centre_at_keyframe_ = Eigen::Vector3d::Zero();
+  double last_baseline_ratio_ = -1.0;
   KeyframeHistogram previous_;
   bool have_previous_ = false;
   double last_kl_ = 0.0;

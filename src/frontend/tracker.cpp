@@ -509,6 +509,9 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   e.inlier_x = std::span<const float>(inlier_x_.data(), static_cast<std::size_t>(r.num_inliers));
   e.inlier_y = std::span<const float>(inlier_y_.data(), static_cast<std::size_t>(r.num_inliers));
   e.histogram = &histogram_;
+  // The parallax gate is for depth triangulated from the poses; sensor depth needs none.
+  e.centre_w = r.T_w_c.translation();
+  e.median_depth = mode_ == "rgbd" ? 0.0 : median_depth_;
   KeyframeReason reason = policy_.decide(e);
   if (force_keyframe_ && reason == KeyframeReason::kNone)
     reason = static_cast<KeyframeReason>(last_reason_);
@@ -764,7 +767,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   counters_.initialized = true;
   counters_.initialized_seq = frame.seq;
   fix_focal_at_init(frame.seq);
-  policy_.reset(ni, frame.t_ns);
+  policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;
   recent_next_ = (recent_next_ + 1) % recent_.size();
   r.state = TrackState::kTracked;
@@ -848,7 +851,7 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
   counters_.initialized = true;
   counters_.initialized_seq = frame.seq;
   fix_focal_at_init(frame.seq);
-  policy_.reset(ni, frame.t_ns);
+  policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;
   recent_next_ = (recent_next_ + 1) % recent_.size();
   r.state = TrackState::kTracked;

@@ -338,11 +338,18 @@ struct CandidateCheck {
   int good = 0;        ///< consistent and seen under >= min_point_parallax_deg
   int consistent = 0;  ///< in front of both cameras with reprojection chi2 below the gate
   std::vector<double> parallax_deg;  ///< of the consistent points
-  std::vector<std::uint8_t> status;  ///< per correspondence: kConsistent | kGood bits
+  std::vector<std::uint8_t> status;  ///< per correspondence: kConsistent | kGood, or kUndecided
 };
 
 constexpr std::uint8_t kConsistent = 1;  ///< CandidateCheck::status bit
 constexpr std::uint8_t kGood = 2;        ///< CandidateCheck::status bit
+/// CandidateCheck::status bit: the point moved too little once the candidate's rotation is
+/// taken out (it lies near the epipole) to say anything about the translation. Its ray pair
+/// is nearly parallel to the baseline, so noise alone puts its triangulation behind a camera
+/// or far off its pixels: it neither supports nor refutes the candidate.
+constexpr std::uint8_t kUndecided = 4;
+/// Rotation-compensated image motion below this many keypoint sigmas: kUndecided.
+constexpr double kMinDecidableDisparitySigmas = 2.0;
 
 /// Fast triangulation for the candidate vote (camera 0 = [I | 0], camera 1 = [R | t]):
 /// midpoint of the common perpendicular of the two rays, from the 2x2 normal equations of
@@ -387,6 +394,12 @@ CandidateCheck check_candidate(const Motion& m, std::span<const Eigen::Vector2d>
     if (!inliers[i]) continue;
     const Eigen::Vector3d x0 = K.unproject(uv0[i]);
     const Eigen::Vector3d x1 = K.unproject(uv1[i]);
+    const Eigen::Vector3d x0_rotated = m.R * x0;
+    if (x0_rotated.z() > 0.0 && (K.project(x0_rotated) - uv1[i]).squaredNorm() * inv_sigma2 <
+                                    kMinDecidableDisparitySigmas * kMinDecidableDisparitySigmas) {
+      c.status[i] = kUndecided;
+      continue;
+    }
     Eigen::Vector3d X;
     const bool ok = final_map ? triangulate_two_view(identity, T_c1_c0, x0, x1, X)
                               : triangulate_midpoint(m, x0, x1, X);
@@ -794,16 +807,23 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   if (checks[best].good < o.min_triangulated) {
     return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
   }
-  // Ambiguity: another candidate with nearly as many good points that also agrees with
+  // Ambiguity: another candidate consistent with nearly as many points that also agrees with
   // (almost) all of the winner's good points. A candidate that puts a fraction of the
   // winner's well-triangulated points behind a camera or off their pixels is refuted by them
   // (they are model inliers; chance outliers among them are rare), e.g. the twin solution of
-  // a homography whose virtual plane crosses the field of view.
+  // a homography whose virtual plane crosses the field of view. The pre-filter counts
+  // consistent points, not good ones: under forward motion the true decomposition sees less
+  // parallax than its twin (which moves sideways), so fewer of its points pass the parallax
+  // bar, though it explains them all.
   for (std::size_t k = 0; k < checks.size(); ++k) {
-    if (k == best || checks[k].good <= o.ambiguity_ratio * checks[best].good) continue;
+    if (k == best || checks[k].consistent <= o.ambiguity_ratio * checks[best].consistent) {
+      continue;
+    }
     int refuted = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      if ((checks[best].status[i] & kGood) && !(checks[k].status[i] & kConsistent)) ++refuted;
+      if ((checks[best].status[i] & kGood) && !(checks[k].status[i] & (kConsistent | kUndecided))) {
+        ++refuted;
+      }
     }
     if (refuted < kMinRefutedFraction * checks[best].good) {
       return refuse(std::move(r), TwoViewRefusal::kAmbiguous);

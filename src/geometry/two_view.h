@@ -20,9 +20,11 @@
 ///   most max_translation_dir_sigma_deg. At low parallax a homography's decomposition and a
 ///   poorly constrained essential matrix trade a rotation for a sideways translation (forward
 ///   motion while turning, facing a wall), and the map they build is bent;
-/// - ambiguous: a second candidate has >= ambiguity_ratio of the winner's good points and is
-///   not refuted by them (fewer than 5 % of them behind its cameras or off their pixels),
-///   e.g. the two-fold homography ambiguity of a plane under forward motion.
+/// - ambiguous: a second candidate is consistent with >= ambiguity_ratio of the points the
+///   winner is consistent with and is not refuted by the winner's good points (fewer than 5 %
+///   of them behind its cameras or off their pixels; points near its epipole, which moved
+///   too little once its rotation is taken out, count for neither), e.g. the two-fold
+///   homography ambiguity of a plane under forward motion.
 ///
 /// Scoring note: ORB-SLAM offsets both scores by the 2-dof chi2 threshold, which makes a
 /// correct F out-score a correct H even on a plane (a point-to-line residual is smaller than
@@ -58,8 +60,8 @@ struct TwoViewOptions {
   double min_point_parallax_deg = 0.5;          ///< points seen under less parallax are not kept
   double confident_parallax_deg = 3.0;          ///< median parallax accepted whatever the model
   double max_translation_dir_sigma_deg = 0.25;  ///< below it: essential with a smaller sigma
-  double ambiguity_ratio = 0.7;  ///< a 2nd candidate with this fraction of the winner's good
-                                 ///< points, not refuted by them -> ambiguous, refuse
+  double ambiguity_ratio = 0.7;  ///< a 2nd candidate consistent with this fraction of the
+                                 ///< winner's points, not refuted by them -> ambiguous, refuse
   std::uint64_t seed = 1;        ///< RANSAC random seed (deterministic runs)
 
   template <class V>
@@ -96,8 +98,8 @@ struct TwoViewOptions {
             "model's refined translation direction that initializes, deg",
             options::Range<double>{0.0, 180.0});
     v.field("ambiguity_ratio", ambiguity_ratio,
-            "refuse when another motion candidate has this fraction of the winner's good points "
-            "(unless those points refute it)",
+            "refuse when another motion candidate is consistent with this fraction of the "
+            "points the winner is consistent with (unless the winner's good points refute it)",
             options::Range<double>{0.0, 1.0});
     // The YAML layer reads signed 64-bit integers: go through one (seeds are small).
     std::int64_t seed_value = static_cast<std::int64_t>(seed);

@@ -162,5 +162,42 @@ TEST(KeyframePolicy, MaxSpacingForcesAKeyframe) {
   EXPECT_EQ(policy.decide(evidence(s, nullptr, 11)), KeyframeReason::kMaxSpacing);
 }
 
+TEST(KeyframePolicy, ParallaxGateHoldsAllButTheCountUntilTheCameraHasMoved) {
+  KeyframePolicyOptions o;
+  o.min_inliers = 50;
+  o.min_inlier_ratio = 0.6;
+  o.min_spread = 0.4;
+  o.min_spacing_s = 0.0;
+  o.min_baseline_ratio = 0.03;
+  KeyframePolicy policy(o, kWidth, kHeight);
+  const Eigen::Vector3d start(1.0, 2.0, 0.5);
+  policy.reset(300, 0, start);
+  // Bunched-up inliers, fewer than 0.6 of the keyframe's: spread and ratio would both fire.
+  KeyframeEvidence e = evidence(Spread(120, kWidth / 4.0F, kHeight), nullptr);
+  e.median_depth = 2.0;
+  e.centre_w = start + Eigen::Vector3d(0.05, 0.0, 0.0);  // 0.05 / 2 = 0.025 < 0.03
+  EXPECT_EQ(policy.decide(e), KeyframeReason::kNone);
+  EXPECT_NEAR(policy.last_baseline_ratio(), 0.025, 1e-12);
+  e.centre_w = start + Eigen::Vector3d(0.0, 0.0, 0.07);  // 0.035: the gate opens
+  EXPECT_EQ(policy.decide(e), KeyframeReason::kTooFewInliers);
+  // The absolute count is not gated: losing the map must still make a keyframe.
+  KeyframeEvidence few = evidence(Spread(40), nullptr);
+  few.median_depth = 2.0;
+  few.centre_w = start;
+  EXPECT_EQ(policy.decide(few), KeyframeReason::kTooFewInliers);
+  // Unknown depth (<= 0) means no gate.
+  e.centre_w = start;
+  e.median_depth = 0.0;
+  EXPECT_EQ(policy.decide(e), KeyframeReason::kTooFewInliers);
+  // The gate measures from the newest keyframe's centre.
+  e.median_depth = 2.0;
+  e.centre_w = start + Eigen::Vector3d(0.1, 0.0, 0.0);
+  policy.on_frame(e, true);
+  e.inliers = 120;
+  EXPECT_EQ(policy.decide(e), KeyframeReason::kNone);  // 0 baseline from the new keyframe
+  e.centre_w = start + Eigen::Vector3d(0.1, 0.08, 0.0);
+  EXPECT_EQ(policy.decide(e), KeyframeReason::kPoorSpread);
+}
+
 }  // namespace
 }  // namespace mer::frontend
