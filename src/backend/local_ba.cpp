@@ -108,13 +108,21 @@ class StopCallback final : public ceres::IterationCallback, public ceres::Evalua
   bool in_evaluation_ = false;
 };
 
-/// Fixed-capacity storage of cost functions (Ceres' are neither copyable nor movable): one
-/// allocation instead of one per block.
+/// Storage of cost functions (Ceres' are neither copyable nor movable): one allocation for
+/// all blocks instead of one per block, kept from run to run (grown when a run needs more).
+/// Addresses stay put until the next reset.
 template <class T>
 class CostArena {
  public:
-  explicit CostArena(std::size_t capacity)
-      : slots_(std::make_unique<std::optional<T>[]>(capacity)), capacity_(capacity) {}
+  /// Destroys the cost functions of the previous run and makes room for `capacity`.
+  void reset(std::size_t capacity) {
+    for (std::size_t i = 0; i < size_; ++i) slots_[i].reset();
+    size_ = 0;
+    if (capacity > capacity_) {
+      slots_ = std::make_unique<std::optional<T>[]>(capacity);
+      capacity_ = capacity;
+    }
+  }
   /// nullptr when full.
   template <class... Args>
   T* emplace(Args&&... args) {
@@ -124,7 +132,7 @@ class CostArena {
 
  private:
   std::unique_ptr<std::optional<T>[]> slots_;
-  std::size_t capacity_;
+  std::size_t capacity_ = 0;
   std::size_t size_ = 0;
 };
 
@@ -152,6 +160,56 @@ struct Observation {
 
 }  // namespace
 
+/// What a run builds, kept from one run to the next: the containers keep their capacity (no
+/// first touch of fresh memory once the windows stopped growing), and the previous run's
+/// problem, cost functions and containers are released at the start of the next run rather
+/// than before a run returns, which keeps their destruction out of the abort latency.
+struct LocalBundleAdjuster::Workspace {
+  explicit Workspace(double huber_width) : huber(huber_width) {}
+
+  /// Releases the previous run's problem and cost functions and empties the containers
+  /// (their capacity is kept). Before any other member is touched: the problem refers to them.
+  void reset() {
+    problem.reset();
+    ordering->Clear();
+    reprojection_costs.reset(0);
+    depth_costs.reset(0);
+    poses.clear();
+    pose_index.clear();
+    points.clear();
+    point_index.clear();
+    outside.clear();
+    fixed_list.clear();
+    residuals.clear();
+    point_obs.clear();
+    outliers.clear();
+  }
+
+  // The window (see optimize): keyframe poses and map-points, in insertion order.
+  std::vector<std::pair<map::KeyframeId, PoseBlock>> poses;
+  std::unordered_map<map::KeyframeId, std::size_t> pose_index;
+  std::vector<std::pair<map::PointId, PointBlock>> points;
+  std::unordered_map<map::PointId, std::size_t> point_index;
+  std::unordered_map<map::KeyframeId, int> outside;  // keyframe -> shared points
+  std::vector<std::pair<map::KeyframeId, int>> fixed_list;
+  std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs =
+      std::vector<std::pair<map::KeyframeId, std::uint32_t>>(kMaxObservationsRead);
+  // The problem and what it refers to.
+  CostArena<ReprojectionCost> reprojection_costs;
+  CostArena<DepthCost> depth_costs;
+  RotationManifold quat_manifold;
+  ceres::HuberLoss huber;
+  std::optional<ceres::Problem> problem;
+  std::shared_ptr<ceres::ParameterBlockOrdering> ordering =
+      std::make_shared<ceres::ParameterBlockOrdering>();
+  std::vector<Observation> residuals;
+  // Outlier classification.
+  std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
+  std::vector<ceres::ResidualBlockId> outliers;
+};
+
+LocalBundleAdjuster::~LocalBundleAdjuster() = default;
+
 LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map,
                                          std::vector<float> level_sigma2, bool deterministic,
                                          bool metric_depth)
@@ -160,10 +218,23 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
       level_sigma2_(std::move(level_sigma2)),
       deterministic_(deterministic),
       depth_mode_(opts.depth_edges == "auto" ? (metric_depth ? "metric" : "off")
-                                             : opts.depth_edges) {}
+                                             : opts.depth_edges),
+      ws_(std::make_unique<Workspace>(opts.huber_sigmas)) {
+  // The window's poses and points: reserved for the configured window sizes up front.
+  const auto window = static_cast<std::size_t>(std::max(0, opts_.window_keyframes));
+  const auto fixed = static_cast<std::size_t>(std::max(0, opts_.max_fixed_keyframes));
+  const auto keypoints =
+      static_cast<std::size_t>(std::max(0, map_.options().max_keypoints_per_keyframe));
+  ws_->poses.reserve(window + fixed);
+  ws_->pose_index.reserve(window + fixed);
+  ws_->points.reserve(window * keypoints);
+  ws_->point_index.reserve(window * keypoints);
+  ws_->outside.reserve(static_cast<std::size_t>(std::max(0, map_.options().max_keyframes)));
+}
 
 LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
   if (!opts_.enabled) return {};
+  const auto t0 = begin_run();
   const auto t_wait = std::chrono::steady_clock::now();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
   const double wait_ms =
@@ -175,7 +246,7 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   for (std::size_t i = 0; i < nc && static_cast<int>(window.size()) < opts_.window_keyframes; ++i) {
     window.push_back(covis[i].id);
   }
-  LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, lock);
+  LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, t0, lock);
   rep.lock_wait_ms += wait_ms;
   if (!rep.ran) return rep;
   ++totals_.runs;
@@ -194,23 +265,30 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
 }
 
 LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations) {
+  const auto t0 = begin_run();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
   std::vector<map::KeyframeId> window;
   const map::KeyframeId n = map_.num_keyframes();
   for (map::KeyframeId id = 0; id < n; ++id) {
     if (map_.keyframe_is_live(id)) window.push_back(id);
   }
-  return optimize(window, K, max_iterations, false, lock);
+  return optimize(window, K, max_iterations, false, t0, lock);
+}
+
+std::chrono::steady_clock::time_point LocalBundleAdjuster::begin_run() {
+  abort_.store(false, std::memory_order_relaxed);
+  iterations_.store(0, std::memory_order_relaxed);
+  const auto t0 = std::chrono::steady_clock::now();
+  ws_->reset();
+  return t0;
 }
 
 LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& window,
                                             const geometry::Pinhole& K, int max_iterations,
-                                            bool budgeted,
+                                            bool budgeted, std::chrono::steady_clock::time_point t0,
                                             std::unique_lock<platform::PiMutex>& lock) {
   LocalBaReport rep;
-  abort_.store(false, std::memory_order_relaxed);
-  iterations_.store(0, std::memory_order_relaxed);
-  const auto t0 = std::chrono::steady_clock::now();
+  Workspace& ws = *ws_;
   const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
       std::chrono::duration<double, std::milli>(opts_.max_time_ms));
   StopCallback stop(abort_, iterations_, t0, t0 + budget, budgeted, observer_);
@@ -218,8 +296,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   // Parameter blocks live in arrays, in insertion order: Ceres orders a group of the given
   // elimination ordering by address, which must not depend on the heap for lockstep runs to
   // be repeatable. The capacities are reserved: the blocks' addresses must not move.
-  std::vector<std::pair<map::KeyframeId, PoseBlock>> poses;
-  std::unordered_map<map::KeyframeId, std::size_t> pose_index;
+  auto& poses = ws.poses;
+  auto& pose_index = ws.pose_index;
   poses.reserve(window.size() + static_cast<std::size_t>(std::max(0, opts_.max_fixed_keyframes)));
   auto load_pose = [&](map::KeyframeId id, bool fixed) {
     SE3d T_w_c;
@@ -241,13 +319,13 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   if (poses.size() < 2) return rep;
 
   // 2. Points seen by the window, and the keyframes outside it that see them.
-  std::vector<std::pair<map::PointId, PointBlock>> points;
-  std::unordered_map<map::PointId, std::size_t> point_index;
+  auto& points = ws.points;
+  auto& point_index = ws.point_index;
   std::size_t max_points = 0;
   for (const map::KeyframeId id : window) max_points += map_.keyframe_keypoints(id).size();
   points.reserve(max_points);
-  std::unordered_map<map::KeyframeId, int> outside;  // keyframe -> shared points
-  std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(kMaxObservationsRead);
+  auto& outside = ws.outside;  // keyframe -> shared points
+  auto& obs = ws.obs;
   std::size_t max_blocks = 0;  // upper bound of the residual blocks (cost functions' storage)
   for (const map::KeyframeId id : window) {
     if (stop.check(LocalBaPoll::kLoad)) break;
@@ -269,12 +347,15 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       }
     }
   }
-  std::vector<std::pair<map::KeyframeId, int>> fixed_list(outside.begin(), outside.end());
+  // The window is read: a poll before selecting the fixed keyframes and building the problem.
+  if (!stop.stop()) (void)stop.check(LocalBaPoll::kLoad);
+  auto& fixed_list = ws.fixed_list;
+  fixed_list.assign(outside.begin(), outside.end());
   std::sort(fixed_list.begin(), fixed_list.end(), [](const auto& a, const auto& b) {
     return a.second != b.second ? a.second > b.second : a.first < b.first;
   });
   for (const auto& [id, count] : fixed_list) {
-    if (rep.fixed_keyframes >= opts_.max_fixed_keyframes) break;
+    if (rep.fixed_keyframes >= opts_.max_fixed_keyframes || stop.stop()) break;
     if (load_pose(id, true)) ++rep.fixed_keyframes;
   }
   // Gauge: without a fixed keyframe, hold the oldest window keyframe (by frame sequence:
@@ -289,25 +370,28 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     poses[pose_index.at(oldest)].second.fixed = true;
   }
 
-  // 3. Problem. The cost functions live in two arrays reserved up front (their addresses
-  //    must not move) rather than in one heap block each: building and destroying the problem
-  //    are stretches without a poll. Without fast removal the problem keeps no per-parameter
-  //    residual sets (half of its construction and destruction); removing an outlier is then
-  //    a scan of the residual blocks, done a few hundred times at most, polled.
+  // 3. Problem. The cost functions live in two arrays sized up front (their addresses must not
+  //    move) rather than in one heap block each. Without fast removal the problem keeps no
+  //    per-parameter residual sets (half of its construction and destruction); removing an
+  //    outlier is then a scan of the residual blocks, done a few hundred times at most,
+  //    polled. The problem outlives the run (Workspace): its evaluation callback, `stop`,
+  //    does not, which is fine as only its destruction is left, and that does not call it.
+  if (!stop.stop()) (void)stop.check(LocalBaPoll::kBuild);
   const bool use_depth = depth_mode_ != "off";
-  CostArena<ReprojectionCost> reprojection_costs(max_blocks);
-  CostArena<DepthCost> depth_costs(use_depth ? max_blocks : 0);
-  RotationManifold quat_manifold;
-  ceres::HuberLoss huber(opts_.huber_sigmas);
+  auto& reprojection_costs = ws.reprojection_costs;
+  auto& depth_costs = ws.depth_costs;
+  reprojection_costs.reset(max_blocks);
+  depth_costs.reset(use_depth ? max_blocks : 0);
+  RotationManifold& quat_manifold = ws.quat_manifold;
+  ceres::HuberLoss& huber = ws.huber;
   ceres::Problem::Options popts;
   popts.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popts.enable_fast_removal = false;
   popts.evaluation_callback = &stop;
-  std::optional<ceres::Problem> problem_storage(std::in_place, popts);
-  ceres::Problem& problem = *problem_storage;
-  std::vector<Observation> residuals;
+  ceres::Problem& problem = ws.problem.emplace(popts);
+  auto& residuals = ws.residuals;
   residuals.reserve(max_blocks * (use_depth ? 2 : 1));
   int until_poll = kBuildPollEvery;
   for (auto& [p, pt] : points) {
@@ -357,7 +441,6 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   }
   // Aborted (or out of time) while building: nothing was optimized, the map is untouched.
   auto stopped_early = [&] {
-    problem_storage.reset();  // its destruction is part of the latency
     (void)stop.mark();
     rep.ran = true;
     rep.max_poll_gap_ms = stop.max_gap_ms;
@@ -400,7 +483,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   sopts.callbacks.push_back(&stop);
   // The Schur elimination ordering, given: points first, then the keyframe blocks. Ceres
   // would otherwise find it itself (a graph search over all blocks in its preprocessing).
-  auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
+  const std::shared_ptr<ceres::ParameterBlockOrdering>& ordering = ws.ordering;
   for (auto& [p, pt] : points) {
     if (problem.HasParameterBlock(pt.X.data())) ordering->AddElementToGroup(pt.X.data(), 0);
   }
@@ -435,8 +518,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   //    make inliers look like outliers; the progress made is written back as it is. All
   //    blocks are checked before any is removed, so that an abort in between leaves no
   //    partial classification.
-  std::unordered_map<map::PointId, std::pair<int, int>> point_obs;  // inliers, outliers
-  std::vector<ceres::ResidualBlockId> outliers;
+  auto& point_obs = ws.point_obs;  // inliers, outliers
+  auto& outliers = ws.outliers;
   // (Past the deadline a started classification is finished, as the deadline is only
   // checked between solves; an abort request ends it.)
   const bool classify = !stop.stop();
@@ -549,8 +632,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       }
     }
   }
-  problem_storage.reset();  // its destruction is part of the latency an abort can see
-  (void)stop.mark();        // and so is the write-back
+  (void)stop.mark();  // the write-back is part of the latency an abort can see
   rep.ran = true;
   rep.max_poll_gap_ms = stop.max_gap_ms;
   rep.aborted = stop.aborted;

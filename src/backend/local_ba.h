@@ -25,17 +25,23 @@
 /// culled; counted in `stale_writes`). In lockstep nothing changes in between, so results are
 /// the same as with one lock span.
 ///
-/// Abort latency (request_abort until the run returns): the request is polled every
-/// kBuildPollEvery residual blocks while the problem is built, by every cost function on every
-/// evaluation (see ba_residuals.h), between solver iterations and every few outlier checks.
-/// What is left unpolled is Ceres' preprocessing (given the elimination ordering, so it skips
-/// its own), one linear solve (fixed-size Schur specialization), the write-back and the
-/// problem's destruction (no per-block heap objects of ours): a few ms at the largest windows.
+/// Abort latency (request_abort until the run returns): the request is polled per window
+/// keyframe while the window is read, once it is read, every kBuildPollEvery residual blocks
+/// while the problem is built, by every cost function on every evaluation (see
+/// ba_residuals.h), between solver iterations and every few outlier checks. What is left
+/// unpolled is Ceres' preprocessing (given the elimination ordering, so it skips its own), one
+/// linear solve (fixed-size Schur specialization), Ceres' clean-up after a solve and the
+/// write-back: a few ms at the largest windows. What a run builds (the problem, its cost
+/// functions, the window's containers) is kept until the next run starts, which releases it
+/// (after clearing the request, before its first poll): its destruction is not on the way
+/// out of an aborted run, and the containers keep their capacity from run to run.
 
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <string_view>
@@ -173,6 +179,9 @@ class LocalBundleAdjuster {
   /// in map units from a sensor (rgbd mode), which `depth_edges: auto` uses as is.
   LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map, std::vector<float> level_sigma2,
                       bool deterministic = false, bool metric_depth = false);
+  ~LocalBundleAdjuster();
+  LocalBundleAdjuster(const LocalBundleAdjuster&) = delete;
+  LocalBundleAdjuster& operator=(const LocalBundleAdjuster&) = delete;
 
   /// The 3D-3D edge mode in effect (`auto` resolved): "off", "metric" or "scaled".
   const std::string& depth_edge_mode() const { return depth_mode_; }
@@ -189,8 +198,9 @@ class LocalBundleAdjuster {
 
   /// Pre-empts the run in progress (any thread; lock-free): it stops at the next poll (see the
   /// file comment; within the solver iteration in progress), keeps the progress made (the last
-  /// completed iteration) and returns. A run clears the request when it
-  /// starts, so a request between runs is dropped: it only ever shortens the current run.
+  /// completed iteration) and returns. A run clears the request when it starts (on entry to
+  /// spin_once / optimize_full, before it waits for the writer lock), so a request between
+  /// runs is dropped: it only ever shortens the current run.
   void request_abort() noexcept { abort_.store(true, std::memory_order_relaxed); }
 
   /// Solver iterations completed so far by the current (or last) run; any thread.
@@ -206,9 +216,16 @@ class LocalBundleAdjuster {
   }
 
  private:
-  /// `lock` holds the writer lock on entry; released while Ceres solves, held on return.
+  struct Workspace;  // what a run builds, kept for the next (local_ba.cpp)
+
+  /// Starts a run: clears the abort request and the iteration count, releases what the
+  /// previous run built; returns the run's start time.
+  std::chrono::steady_clock::time_point begin_run();
+  /// `t0`: from begin_run. `lock` holds the writer lock on entry; released while Ceres solves,
+  /// held on return.
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
                          int max_iterations, bool budgeted,
+                         std::chrono::steady_clock::time_point t0,
                          std::unique_lock<platform::PiMutex>& lock);
 
   LocalBaOptions opts_;
@@ -220,6 +237,7 @@ class LocalBundleAdjuster {
   std::atomic<int> iterations_{0};
   LocalBaTotals totals_;
   std::function<void(LocalBaPoll)> observer_;
+  std::unique_ptr<Workspace> ws_;
 };
 
 }  // namespace mer::backend
