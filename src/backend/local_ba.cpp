@@ -23,6 +23,9 @@ constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
 constexpr double kMsPerS = 1000.0;
 constexpr std::size_t kMaxDenseSchurKeyframes = 64;  // larger windows: sparse Schur
 constexpr double kMinDepth = 1e-6;  // camera z below which an observation is not evaluable
+/// Per run, the time held back from the solves for the work after them decays by this factor
+/// towards the latest measurement (it follows a shrinking window within a few runs).
+constexpr double kTailReserveDecay = 0.8;
 
 /// Polls the abort request and the run's deadline: at the window loading and problem
 /// building steps (check), as the solver's iteration callback (between iterations) and as its
@@ -55,9 +58,23 @@ class StopCallback final : public ceres::IterationCallback, public ceres::Evalua
       cost = cut ? cost - summary.cost_change : summary.cost;
     }
     // SOLVER_TERMINATE_SUCCESSFULLY keeps the parameters of the last accepted iteration.
-    return check(LocalBaPoll::kIteration) ? ceres::SOLVER_TERMINATE_SUCCESSFULLY
-                                          : ceres::SOLVER_CONTINUE;
+    if (check(LocalBaPoll::kIteration)) return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    // Deadline, predicted: an iteration is not interrupted, so one that would end past the
+    // solves' deadline (the run's, less the time the run needs after its solves) is not begun.
+    const Clock::time_point now = last_poll_;  // check() just marked it
+    if (summary.iteration > 0)
+      longest_iteration_ = std::max(longest_iteration_, now - iteration_t_);
+    iteration_t_ = now;
+    if (use_deadline_ && now + longest_iteration_ >= solve_deadline_) {
+      timed_out = true;
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    }
+    return ceres::SOLVER_CONTINUE;
   }
+  /// The solves end by this time (before the run's deadline: the run's work after them).
+  void set_solve_deadline(Clock::time_point t) { solve_deadline_ = t; }
+  /// Marks the start of a solve (its first iteration is timed from here).
+  void solve_started() { iteration_t_ = Clock::now(); }
   void PrepareForEvaluation(bool evaluate_jacobians, bool /*new_evaluation_point*/) override {
     if (!in_solve) return;  // Problem::EvaluateResidualBlock outside a solve
     if (observer_) {
@@ -103,6 +120,9 @@ class StopCallback final : public ceres::IterationCallback, public ceres::Evalua
   std::atomic<int>& iterations_;
   Clock::time_point last_poll_;
   Clock::time_point deadline_;
+  Clock::time_point solve_deadline_ = deadline_;
+  Clock::time_point iteration_t_;  // the last iteration ended (or began)
+  Clock::duration longest_iteration_ = Clock::duration::zero();  // of this run
   bool use_deadline_;
   const std::function<void(LocalBaPoll)>& observer_;
   bool in_evaluation_ = false;
@@ -504,8 +524,13 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   };
   if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
   ceres::Solver::Summary summary;
+  stop.set_solve_deadline(t0 + budget -
+                          std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                              std::chrono::duration<double, std::milli>(
+                                  std::min(tail_reserve_ms_, opts_.max_time_ms))));
   auto solve = [&] {
     stop.in_solve = true;
+    stop.solve_started();
     ceres::Solve(sopts, &problem, &summary);
     stop.in_solve = false;
     (void)stop.check(LocalBaPoll::kSolve);  // Ceres' post-processing is a stretch too
@@ -513,6 +538,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   solve();
   stop.first_solve = false;
   rep.initial_cost = stop.initial_cost;
+  const auto t_tail = std::chrono::steady_clock::now();  // the work after the solves, timed
+  std::chrono::steady_clock::duration second_solve{};
 
   // 4. Outliers out, solve again. Not after a pre-empted solve: unconverged residuals would
   //    make inliers look like outliers; the progress made is written back as it is. All
@@ -561,7 +588,9 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   }
   if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check(LocalBaPoll::kSolve)) {
     if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
+    const auto t_solve = std::chrono::steady_clock::now();
     solve();
+    second_solve = std::chrono::steady_clock::now() - t_solve;
   }
   rep.final_cost = stop.cost_known ? stop.cost : 0.0;
 
@@ -633,6 +662,14 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     }
   }
   (void)stop.mark();  // the write-back is part of the latency an abort can see
+  if (budgeted) {
+    // What a run needs after its solves (outlier classification, the second solve's set-up,
+    // the write-back): the largest recent figure, decaying, is held back from the solves.
+    const double tail_ms = std::chrono::duration<double, std::milli>(
+                               std::chrono::steady_clock::now() - t_tail - second_solve)
+                               .count();
+    tail_reserve_ms_ = std::max(tail_ms, kTailReserveDecay * tail_reserve_ms_);
+  }
   rep.ran = true;
   rep.max_poll_gap_ms = stop.max_gap_ms;
   rep.aborted = stop.aborted;

@@ -11,9 +11,12 @@
 /// depth carries its own scale, optimized with the poses (the Sim(3)-style handling of
 /// monocular depth whose scale is only known up to the alignment). A first solve with all
 /// observations is followed by a second one without the observations it found to be outliers;
-/// points with too few consistent observations are culled. Bounded by iterations and wall time. The
-/// optimized poses and positions are written back to the map (which the tracker reads at its next
-/// frame).
+/// points with too few consistent observations are culled. Bounded by iterations and wall time
+/// (`max_time_ms`, threaded mode): Ceres cannot interrupt an iteration, so an iteration is not
+/// begun when the run's longest one so far would end past the solves' deadline, which is the
+/// run's less the time the work after the solves took in recent runs (outlier classification,
+/// the second solve's set-up, the write-back). The optimized poses and positions are written
+/// back to the map (which the tracker reads at its next frame).
 ///
 /// Threading: in threaded mode it runs on the back-end thread (high priority, below tracking)
 /// for the newest keyframe the keyframe builder (depth thread) inserted; in lockstep, right
@@ -238,6 +241,7 @@ class LocalBundleAdjuster {
   LocalBaTotals totals_;
   std::function<void(LocalBaPoll)> observer_;
   std::unique_ptr<Workspace> ws_;
+  double tail_reserve_ms_ = 0.0;  // budgeted runs: time after the solves (see optimize)
 };
 
 }  // namespace mer::backend
