@@ -7,7 +7,8 @@
 /// - `kl_jump`: after `min_spacing_s`, the KL divergence between the histogram of tracked
 ///   points over the keyframes they belong to, in this frame and in the previous one, exceeds
 ///   `kl_threshold` (tracked points suddenly belong to other keyframes: a revisit);
-/// - `max_spacing`: `max_spacing_s` since the last keyframe.
+/// - `max_spacing`: `max_spacing_s` since the last keyframe (`rgbd_max_spacing_s` in RGB-D
+///   mode, see KeyframePolicyOptions::for_mode).
 /// Spacing is in time (frame timestamps), so the policy behaves the same at 10 and 30 Hz.
 /// Parallax gate (monocular): while the camera has moved less than `min_baseline_ratio` of the
 /// tracked points' median depth since the last keyframe, only the absolute inlier count (and
@@ -20,6 +21,7 @@
 #include <array>
 #include <cstdint>
 #include <span>
+#include <string_view>
 
 #include <Eigen/Core>
 
@@ -36,10 +38,22 @@ struct KeyframePolicyOptions {
   int spread_grid_cols = 8;    ///< spread grid columns
   int spread_grid_rows = 6;    ///< spread grid rows
   double min_spacing_s = 0.1;  ///< time after a keyframe before count/spread/KL may fire, s
-  double max_spacing_s = 1.5;  ///< a keyframe at least this often while tracking, s
+  double max_spacing_s = 1.5;  ///< a keyframe at least this often while tracking (mono), s
   double kl_threshold = 0.8;   ///< KL divergence jump (nats) that fires a keyframe
   double kl_epsilon = 1e-3;    ///< probability floor of an empty histogram bin
   double min_baseline_ratio = 0.03;  ///< below this baseline / median depth only the count fires
+  double rgbd_max_spacing_s = 0.8;   ///< RGB-D: max_spacing_s (sensor depth: keyframes are cheap)
+
+  /// The options in effect for a sensor mode ("mono" or "rgbd"): RGB-D takes
+  /// rgbd_max_spacing_s and no parallax gate (its depth does not come from the poses).
+  KeyframePolicyOptions for_mode(std::string_view mode) const {
+    KeyframePolicyOptions o = *this;
+    if (mode == "rgbd") {
+      o.max_spacing_s = rgbd_max_spacing_s;
+      o.min_baseline_ratio = 0.0;
+    }
+    return o;
+  }
 
   template <class V>
   void visit(V& v) {
@@ -57,7 +71,8 @@ struct KeyframePolicyOptions {
     v.field("min_spacing_s", min_spacing_s,
             "time after a keyframe before the count, spread and KL criteria may fire, s",
             options::Range<double>{0.0, 1e6});
-    v.field("max_spacing_s", max_spacing_s, "a keyframe at least this often while tracking, s",
+    v.field("max_spacing_s", max_spacing_s,
+            "a keyframe at least this often while tracking (mono; RGB-D: rgbd_max_spacing_s), s",
             options::Range<double>{0.001, 1e6});
     v.field("kl_threshold", kl_threshold,
             "KL divergence (nats) between consecutive tracked-point histograms that fires",
@@ -68,6 +83,10 @@ struct KeyframePolicyOptions {
             "camera travel since the last keyframe, over the tracked points' median depth, "
             "below which only min_inliers (and max_spacing) may fire (monocular; 0: off)",
             options::Range<double>{0.0, 10.0});
+    v.field("rgbd_max_spacing_s", rgbd_max_spacing_s,
+            "RGB-D: a keyframe at least this often while tracking, instead of max_spacing_s "
+            "(sensor depth makes keyframes cheap, and each one anchors the map), s",
+            options::Range<double>{0.001, 1e6});
   }
 };
 

@@ -60,7 +60,7 @@ Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pin
       width_(width),
       height_(height),
       mode_(std::move(mode)),
-      policy_(opts.keyframe, width, height) {
+      policy_(opts.keyframe.for_mode(mode_), width, height) {
   focal_.estimated = focal_auto;
   focal_.initial = K.fx;
   focal_.value = K.fx;
@@ -509,9 +509,8 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   e.inlier_x = std::span<const float>(inlier_x_.data(), static_cast<std::size_t>(r.num_inliers));
   e.inlier_y = std::span<const float>(inlier_y_.data(), static_cast<std::size_t>(r.num_inliers));
   e.histogram = &histogram_;
-  // The parallax gate is for depth triangulated from the poses; sensor depth needs none.
   e.centre_w = r.T_w_c.translation();
-  e.median_depth = mode_ == "rgbd" ? 0.0 : median_depth_;
+  e.median_depth = median_depth_;
   KeyframeReason reason = policy_.decide(e);
   if (force_keyframe_ && reason == KeyframeReason::kNone)
     reason = static_cast<KeyframeReason>(last_reason_);
