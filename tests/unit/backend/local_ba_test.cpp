@@ -243,13 +243,17 @@ TEST(LocalBa, GrossDepthOutlierIsRemoved) {
   EXPECT_LT(after.rms_point_m, 0.01);
 }
 
-// A long local BA run (no iteration or time limit to speak of) on a worker thread, for tests
-// that act on it while it solves: start() launches it, wait_for_iterations() returns once it
-// has completed `n` iterations (or ended; bounded, so a hung solver fails the test, not CI).
-struct BackgroundRun {
+// A window big enough that a solve takes many evaluations: 8 keyframes, 3000 points, noisy.
+struct BigWindow {
   static constexpr int kBigPoints = 3000;
   map::Map map{small_map(kBigPoints)};
   Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
+};
+
+// A long local BA run (no iteration or time limit to speak of) on a worker thread, for tests
+// that act on it while it solves: start() launches it, wait_for_iterations() returns once it
+// has completed `n` iterations (or ended; bounded, so a hung solver fails the test, not CI).
+struct BackgroundRun : BigWindow {
   LocalBaOptions o = [] {
     LocalBaOptions v = opts("metric");
     v.max_iterations = 100000;
@@ -317,10 +321,7 @@ struct PollLog {
   int request_at = -1;  // index in polls of the poll whose observer made the request
 };
 
-struct AbortFixture {
-  static constexpr int kBigPoints = 3000;
-  map::Map map{small_map(kBigPoints)};
-  Scene s = build(map, std::vector<double>(8, 1.0), 0.2, 0.05, 0.2, -1, 8, kBigPoints);
+struct AbortFixture : BigWindow {
   LocalBaOptions o = [] {
     LocalBaOptions v = opts("metric");
     v.max_iterations = 50;
