@@ -13,8 +13,8 @@
 namespace mer::hal {
 namespace {
 
-constexpr std::array<std::string_view, 4> kScenarios{"room_orbit", "room_loop", "room_kidnap",
-                                                     "room_fast_rotation"};
+constexpr std::array<std::string_view, 5> kScenarios{"room_orbit", "room_loop", "room_kidnap",
+                                                     "room_fast_rotation", "hall_drive"};
 constexpr std::size_t kNoiseTableSize = 1 << 16;  // noise values, cycled with a per-frame offset
 constexpr int kShapesPerWall = 160;               // texture primitives per wall
 constexpr double kNsPerS = 1e9;
@@ -34,6 +34,23 @@ constexpr double kBoxTextureMetres = 2.0;  // a texture tile spans this many met
 constexpr int kBoxPlacementTries = 200;    // rejection-sampling budget per box
 constexpr std::size_t kMaxBoxes = 16;      // upper bound of num_boxes (options range)
 constexpr float kNearPlane = 1e-3F;        // box corners closer than this count as behind
+constexpr double kShapeRadiusMin = 0.01;   // texture shapes' radius, fraction of the texture side
+constexpr double kShapeRadiusMax = 0.06;
+constexpr double kDriveEyeHeight = 1.65;      // hall_drive: camera height (KITTI's), m
+constexpr double kDrivePathFraction = 0.6;    // hall_drive: path extent, fraction of the hall
+constexpr double kDriveCornerFraction = 0.8;  // hall_drive: corner radius / smaller half extent
+constexpr double kDriveBoxClearance = 3.0;    // hall_drive: boxes stay this far from the path, m
+constexpr double kDriveBoxMinSide = 2.0;      // hall_drive: box footprint side range, m
+constexpr double kDriveBoxMaxSide = 8.0;
+constexpr double kDriveBoxMinHeight = 2.0;  // hall_drive: box height range, m
+constexpr double kDriveBoxMaxHeight = 6.0;
+constexpr double kHallBoxTextureMetres = 8.0;  // hall_drive: texture tile on a box, m
+constexpr int kHallTextureScale = 4;           // hall_drive: texture_size multiplier
+constexpr int kHallShapesPerWall = 3000;       // hall_drive: texture primitives per wall
+constexpr double kHallShapeRadiusMin = 0.004;  // hall_drive: shape radius, fraction of the side
+constexpr double kHallShapeRadiusMax = 0.02;
+constexpr int kMinMipSize = 8;           // coarsest texture level, texels per side
+constexpr float kMinObliqueCos = 0.25F;  // obliquity taken into a pixel footprint at most 4x
 
 // Smooth 0 -> 1 ramp over x in [0, 1] with zero slope at both ends (peak slope 1.5).
 double smoothstep(double x) {
@@ -53,7 +70,8 @@ double uniform(std::mt19937& rng, double lo, double hi) {
 }
 
 // A wall texture: smooth gradient plus random rectangles and discs of random grey levels.
-std::vector<std::uint8_t> make_texture(int size, std::mt19937& rng) {
+std::vector<std::uint8_t> make_texture(int size, int shapes, double r_min, double r_max,
+                                       std::mt19937& rng) {
   std::vector<std::uint8_t> tex(static_cast<std::size_t>(size) * static_cast<std::size_t>(size));
   const double g0 = uniform(rng, 60, 190);
   const double gx = uniform(rng, -60, 60);
@@ -65,11 +83,11 @@ std::vector<std::uint8_t> make_texture(int size, std::mt19937& rng) {
           static_cast<std::uint8_t>(std::clamp(v, 0.0, 255.0));
     }
   }
-  for (int k = 0; k < kShapesPerWall; ++k) {
+  for (int k = 0; k < shapes; ++k) {
     const auto level = static_cast<std::uint8_t>(uniform(rng, 0, 256));
     const double cx = uniform(rng, 0, size);
     const double cy = uniform(rng, 0, size);
-    const double r = uniform(rng, 0.01, 0.06) * size;
+    const double r = uniform(rng, r_min, r_max) * size;
     const bool disc = (rng() & 1U) != 0U;
     const double ax = r * uniform(rng, 0.5, 1.5);
     const double ay = r * uniform(rng, 0.5, 1.5);
@@ -91,6 +109,40 @@ std::vector<std::uint8_t> make_texture(int size, std::mt19937& rng) {
   return tex;
 }
 
+// The texture's mip pyramid: level 0 is `tex`, each next level a 2x2 box average.
+std::vector<std::vector<std::uint8_t>> make_mips(std::vector<std::uint8_t> tex, int size) {
+  std::vector<std::vector<std::uint8_t>> levels;
+  levels.push_back(std::move(tex));
+  for (int s = size / 2; s >= kMinMipSize; s /= 2) {
+    const std::vector<std::uint8_t>& src = levels.back();
+    const auto n = static_cast<std::size_t>(s);
+    std::vector<std::uint8_t> dst(n * n);
+    for (std::size_t y = 0; y < n; ++y) {
+      for (std::size_t x = 0; x < n; ++x) {
+        const std::size_t i = 2 * y * 2 * n + 2 * x;
+        const int sum = src[i] + src[i + 1] + src[i + 2 * n] + src[i + 2 * n + 1];
+        dst[y * n + x] = static_cast<std::uint8_t>((sum + 2) / 4);
+      }
+    }
+    levels.push_back(std::move(dst));
+  }
+  return levels;
+}
+
+// A box standing on the floor: footprint centre (cx, cy), sides sx, sy, height sz, m.
+SceneBox box_on_floor(double cx, double cy, double sx, double sy, double sz, int texture) {
+  return SceneBox{
+      Eigen::Vector3f(static_cast<float>(cx - 0.5 * sx), static_cast<float>(cy - 0.5 * sy), 0.0F),
+      Eigen::Vector3f(static_cast<float>(cx + 0.5 * sx), static_cast<float>(cy + 0.5 * sy),
+                      static_cast<float>(sz)),
+      texture};
+}
+
+// Distance in the plane from (x, y) to the rectangle [-hx, hx] x [-hy, hy] (0 inside).
+double rect_distance(double x, double y, double hx, double hy) {
+  return std::hypot(std::max(std::abs(x) - hx, 0.0), std::max(std::abs(y) - hy, 0.0));
+}
+
 }  // namespace
 
 std::span<const std::string_view> synthetic_scenarios() {
@@ -110,7 +162,24 @@ Status SyntheticCamera::open(std::size_t pool_size) {
   kind_ = scenario_ == "room_loop"            ? Scenario::kLoop
           : scenario_ == "room_kidnap"        ? Scenario::kKidnap
           : scenario_ == "room_fast_rotation" ? Scenario::kFastRotation
+          : scenario_ == "hall_drive"         ? Scenario::kHallDrive
                                               : Scenario::kOrbit;
+  const bool hall = kind_ == Scenario::kHallDrive;
+  const double sx = hall ? opts_.hall_size_x : opts_.room_size_x;
+  const double sy = hall ? opts_.hall_size_y : opts_.room_size_y;
+  const double sz = hall ? opts_.hall_height : opts_.room_height;
+  room_lo_ = {static_cast<float>(-0.5 * sx), static_cast<float>(-0.5 * sy), 0.0F};
+  room_hi_ = {static_cast<float>(0.5 * sx), static_cast<float>(0.5 * sy), static_cast<float>(sz)};
+  texture_size_ = opts_.texture_size * (hall ? kHallTextureScale : 1);
+  for (int a = 0; a < 3; ++a) {
+    wall_texels_per_m_[static_cast<std::size_t>(a)] =
+        static_cast<float>(texture_size_) /
+        (room_hi_[static_cast<std::size_t>(a)] - room_lo_[static_cast<std::size_t>(a)]);
+  }
+  box_texture_metres_ = static_cast<float>(hall ? kHallBoxTextureMetres : kBoxTextureMetres);
+  // The rooms are seen at about one texel per pixel; the hall spans 1-60 m of depth and
+  // would alias without levels.
+  use_mips_ = hall;
   if (pool_size == 0) return invalid_argument("synthetic camera: pool size must be > 0");
 
   const int w = opts_.width;
@@ -129,8 +198,18 @@ Status SyntheticCamera::open(std::size_t pool_size) {
     }
   }
   std::mt19937 rng(static_cast<std::uint32_t>(opts_.seed));
-  for (auto& tex : textures_) tex = make_texture(opts_.texture_size, rng);
-  place_boxes(rng());
+  for (auto& tex : textures_) {
+    tex = make_mips(
+        hall ? make_texture(texture_size_, kHallShapesPerWall, kHallShapeRadiusMin,
+                            kHallShapeRadiusMax, rng)
+             : make_texture(texture_size_, kShapesPerWall, kShapeRadiusMin, kShapeRadiusMax, rng),
+        texture_size_);
+  }
+  if (hall) {
+    place_hall_boxes(rng());
+  } else {
+    place_boxes(rng());
+  }
   noise_.resize(kNoiseTableSize);
   for (auto& n : noise_) {
     n = static_cast<std::int8_t>(
@@ -179,6 +258,64 @@ SE3d SyntheticCamera::orbit_pose(double t_s) const {
   return look_at(eye, target, Eigen::Vector3d::UnitZ());
 }
 
+double SyntheticCamera::drive_half_x() const {
+  return 0.5 * kDrivePathFraction * opts_.hall_size_x;
+}
+double SyntheticCamera::drive_half_y() const {
+  return 0.5 * kDrivePathFraction * opts_.hall_size_y;
+}
+double SyntheticCamera::drive_radius() const {
+  return kDriveCornerFraction * std::min(drive_half_x(), drive_half_y());
+}
+
+SE3d SyntheticCamera::drive_pose(double t_s) const {
+  // Counter-clockwise round a rounded rectangle, starting mid-way along its lower side
+  // heading +x: each side is a straight, each corner a quarter circle of radius r.
+  const double hx = drive_half_x();
+  const double hy = drive_half_y();
+  const double r = drive_radius();
+  const double lx = 2.0 * (hx - r);  // straight lengths
+  const double ly = 2.0 * (hy - r);
+  const double arc = 0.5 * std::numbers::pi * r;
+  const double perimeter = 2.0 * (lx + ly) + 4.0 * arc;
+  double s = std::fmod(opts_.drive_speed_mps * t_s + 0.5 * lx, perimeter);
+  // Side k (k = 0..3) starts at the end of corner k - 1; its straight runs along heading
+  // k * 90 degrees from the corner point below.
+  Eigen::Vector2d pos;
+  double heading = 0.0;
+  const std::array<double, 4> straight{lx, ly, lx, ly};
+  // Start of each side's straight (lower-left, lower-right, upper-right, upper-left).
+  const std::array<Eigen::Vector2d, 4> start{
+      Eigen::Vector2d(-(hx - r), -hy), Eigen::Vector2d(hx, -(hy - r)), Eigen::Vector2d(hx - r, hy),
+      Eigen::Vector2d(-hx, hy - r)};
+  for (std::size_t k = 0; k < 4; ++k) {
+    const double h0 = 0.5 * std::numbers::pi * static_cast<double>(k);
+    const Eigen::Vector2d dir(std::cos(h0), std::sin(h0));
+    if (s < straight[k]) {
+      pos = start[k] + s * dir;
+      heading = h0;
+      break;
+    }
+    s -= straight[k];
+    if (s < arc || k == 3) {
+      // Turning left: the centre is r to the left of the straight's end.
+      const Eigen::Vector2d end = start[k] + straight[k] * dir;
+      const Eigen::Vector2d centre = end + r * Eigen::Vector2d(-dir.y(), dir.x());
+      const double phi = std::min(s, arc) / r;
+      heading = h0 + phi;
+      pos = centre + r * Eigen::Vector2d(std::sin(heading), -std::cos(heading));
+      break;
+    }
+    s -= arc;
+  }
+  // A car's gentle bounce and pitch.
+  const double bounce = 0.02 * std::sin(kTwoPi * 1.3 * t_s);
+  const double pitch = 0.01 * std::sin(kTwoPi * 0.7 * t_s);
+  const Eigen::Vector3d eye(pos.x(), pos.y(), kDriveEyeHeight + bounce);
+  const Eigen::Vector3d target = eye + Eigen::Vector3d(std::cos(heading), std::sin(heading), pitch);
+  return look_at(eye, target, Eigen::Vector3d::UnitZ());
+}
+
 ScenarioSample SyntheticCamera::sample_at(double t_s) const {
   ScenarioSample s;
   switch (kind_) {
@@ -222,6 +359,9 @@ ScenarioSample SyntheticCamera::sample_at(double t_s) const {
       s.T_w_c = T;
       break;
     }
+    case Scenario::kHallDrive:
+      s.T_w_c = drive_pose(t_s);
+      break;
   }
   return s;
 }
@@ -249,11 +389,44 @@ void SyntheticCamera::place_boxes(std::uint32_t seed) {
       const bool clear = nx * nx + ny * ny > 1.0;
       if (!clear) continue;
       boxes_.push_back(
-          SceneBox{Eigen::Vector3f(static_cast<float>(cx - 0.5 * sx),
-                                   static_cast<float>(cy - 0.5 * sy), 0.0F),
-                   Eigen::Vector3f(static_cast<float>(cx + 0.5 * sx),
-                                   static_cast<float>(cy + 0.5 * sy), static_cast<float>(sz)),
-                   static_cast<int>(rng() % textures_.size())});
+          box_on_floor(cx, cy, sx, sy, sz, static_cast<int>(rng() % textures_.size())));
+      break;
+    }
+  }
+}
+
+void SyntheticCamera::place_hall_boxes(std::uint32_t seed) {
+  // Buildings and parked vehicles: boxes on the floor, clear of the drive by
+  // kDriveBoxClearance on either side (inside the block or outside it).
+  std::mt19937 rng(seed);
+  boxes_.clear();
+  const double hx = 0.5 * opts_.hall_size_x - kWallMargin;
+  const double hy = 0.5 * opts_.hall_size_y - kWallMargin;
+  const double r = drive_radius();
+  const double ix = drive_half_x() - r;  // the path is the set at distance r from this rectangle
+  const double iy = drive_half_y() - r;
+  for (int b = 0; b < opts_.num_boxes; ++b) {
+    for (int attempt = 0; attempt < kBoxPlacementTries; ++attempt) {
+      const double sx = uniform(rng, kDriveBoxMinSide, kDriveBoxMaxSide);
+      const double sy = uniform(rng, kDriveBoxMinSide, kDriveBoxMaxSide);
+      const double sz = uniform(rng, kDriveBoxMinHeight, kDriveBoxMaxHeight);
+      const double cx = uniform(rng, -hx + 0.5 * sx, hx - 0.5 * sx);
+      const double cy = uniform(rng, -hy + 0.5 * sy, hy - 0.5 * sy);
+      // Distance from the footprint to the inner rectangle (per-axis gaps), and from its
+      // farthest corner.
+      const double gap_x = std::max(0.0, std::abs(cx) - 0.5 * sx - ix);
+      const double gap_y = std::max(0.0, std::abs(cy) - 0.5 * sy - iy);
+      const double d_min = std::hypot(gap_x, gap_y);
+      double d_max = 0.0;
+      for (int c = 0; c < 4; ++c) {
+        const double x = cx + ((c & 1) != 0 ? 0.5 : -0.5) * sx;
+        const double y = cy + ((c & 2) != 0 ? 0.5 : -0.5) * sy;
+        d_max = std::max(d_max, rect_distance(x, y, ix, iy));
+      }
+      const bool clear = d_min > r + kDriveBoxClearance || d_max < r - kDriveBoxClearance;
+      if (!clear) continue;
+      boxes_.push_back(
+          box_on_floor(cx, cy, sx, sy, sz, static_cast<int>(rng() % textures_.size())));
       break;
     }
   }
@@ -263,36 +436,49 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
                              std::uint64_t noise_offset, float gain) const {
   const Eigen::Matrix3f R = T_w_c.linear().cast<float>();
   const Eigen::Vector3f o = T_w_c.translation().cast<float>();
-  const std::array<float, 3> lo{static_cast<float>(-0.5 * opts_.room_size_x),
-                                static_cast<float>(-0.5 * opts_.room_size_y), 0.0F};
-  const std::array<float, 3> hi{static_cast<float>(0.5 * opts_.room_size_x),
-                                static_cast<float>(0.5 * opts_.room_size_y),
-                                static_cast<float>(opts_.room_height)};
-  const int tsize = opts_.texture_size;
-  const float tmax = static_cast<float>(tsize - 1) - 1e-3F;
-  const float box_scale = static_cast<float>(tsize - 1) / static_cast<float>(kBoxTextureMetres);
+  const std::array<float, 3>& lo = room_lo_;
+  const std::array<float, 3>& hi = room_hi_;
+  const int tsize = texture_size_;
+  const float box_texels_per_m = static_cast<float>(tsize - 1) / box_texture_metres_;
+  const float inv_f = 1.0F / static_cast<float>(intrinsics_.fx);
+  const auto num_levels = static_cast<int>(textures_[0].size());
   const std::size_t noise_mask = kNoiseTableSize - 1;
   std::size_t noise_i = static_cast<std::size_t>(noise_offset * 7919U) & noise_mask;
   const bool noisy = opts_.noise_sigma > 0.0;
   constexpr float kTiny = 1e-9F;
   constexpr float kHuge = 1e30F;
 
-  // Bilinear texture lookup at (fu, fv) in [0, tsize - 1).
-  auto sample = [tsize](const std::vector<std::uint8_t>& texture, float fu, float fv) {
+  // Mip level for a pixel seeing a surface at depth t, `texels_per_m` level-0 texels per
+  // metre, whose normal makes cosine `cos_n` with the ray (0 without mips).
+  auto level_for = [&](float t, float texels_per_m, float cos_n) {
+    if (!use_mips_) return 0;
+    const float footprint = t * inv_f * texels_per_m / std::max(cos_n, kMinObliqueCos);
+    if (footprint <= 1.0F) return 0;
+    return std::min(static_cast<int>(std::log2(footprint)), num_levels - 1);
+  };
+  // Bilinear lookup at level-0 texel coordinates (fu, fv) in [0, tsize - 1) of `level`.
+  auto sample = [tsize](const std::vector<std::vector<std::uint8_t>>& texture, int level, float fu,
+                        float fv) {
+    const int size = tsize >> level;
+    const float scale = 1.0F / static_cast<float>(1 << level);
+    const float lmax = static_cast<float>(size - 1) - 1e-3F;
+    fu = std::min(std::max(fu * scale - 0.5F * (1.0F - scale), 0.0F), lmax);
+    fv = std::min(std::max(fv * scale - 0.5F * (1.0F - scale), 0.0F), lmax);
     const int iu = static_cast<int>(fu);
     const int iv = static_cast<int>(fv);
     const float au = fu - static_cast<float>(iu);
     const float av = fv - static_cast<float>(iv);
-    const std::uint8_t* t = texture.data() +
-                            static_cast<std::size_t>(iv) * static_cast<std::size_t>(tsize) +
+    const std::uint8_t* t = texture[static_cast<std::size_t>(level)].data() +
+                            static_cast<std::size_t>(iv) * static_cast<std::size_t>(size) +
                             static_cast<std::size_t>(iu);
     const float top = t[0] + au * (static_cast<float>(t[1]) - t[0]);
-    const float bot = t[tsize] + au * (static_cast<float>(t[tsize + 1]) - t[tsize]);
+    const float bot = t[size] + au * (static_cast<float>(t[size + 1]) - t[size]);
     return top + av * (bot - top);
   };
+  const float tmax = static_cast<float>(tsize - 1) - 1e-3F;
   // Repeating texture coordinate for box faces.
-  auto wrap = [tmax, box_scale](float metres) {
-    const float f = metres * box_scale;
+  auto wrap = [tmax, box_texels_per_m](float metres) {
+    const float f = metres * box_texels_per_m;
     return f - tmax * std::floor(f / tmax);
   };
 
@@ -388,17 +574,22 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
       }
       const Eigen::Vector3f p = o + t * d;
       float value = 0.0F;
+      const float cos_n = std::abs(d[hit_box != nullptr ? box_axis : axis]) / d.norm();
       if (hit_box != nullptr) {
         const int pa = box_axis == 0 ? 1 : 0;
         const int qa = box_axis == 2 ? 1 : 2;
         value = sample(textures_[static_cast<std::size_t>(hit_box->texture)],
-                       wrap(p[pa] - hit_box->lo[pa]), wrap(p[qa] - hit_box->lo[qa]));
+                       level_for(t, box_texels_per_m, cos_n), wrap(p[pa] - hit_box->lo[pa]),
+                       wrap(p[qa] - hit_box->lo[qa]));
       } else {
         const int pa = axis == 0 ? 1 : 0;
         const int qa = axis == 2 ? 1 : 2;
         const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax;
         const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax;
-        value = sample(textures_[static_cast<std::size_t>(axis * 2 + side)], fu, fv);
+        const float texels_per_m = std::max(wall_texels_per_m_[static_cast<std::size_t>(pa)],
+                                            wall_texels_per_m_[static_cast<std::size_t>(qa)]);
+        value = sample(textures_[static_cast<std::size_t>(axis * 2 + side)],
+                       level_for(t, texels_per_m, cos_n), fu, fv);
       }
       value *= gain;
       if (noisy) {

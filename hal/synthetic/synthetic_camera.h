@@ -41,6 +41,10 @@ struct SyntheticOptions {
   double kidnap_black_s = 1.0;      ///< room_kidnap: how long it stays black, s
   double kidnap_back_s = 6.0;       ///< room_kidnap: how far back in time the camera reappears, s
   double rotation_burst_s = 2.0;    ///< room_fast_rotation: duration of each 360 deg turn, s
+  double hall_size_x = 80.0;        ///< hall_drive: hall extent along world x, m
+  double hall_size_y = 50.0;        ///< hall_drive: hall extent along world y, m
+  double hall_height = 10.0;        ///< hall_drive: hall height, m
+  double drive_speed_mps = 5.6;     ///< hall_drive: driving speed, m/s
 
   template <class V>
   void visit(V& v) {
@@ -78,6 +82,14 @@ struct SyntheticOptions {
     v.field("rotation_burst_s", rotation_burst_s,
             "room_fast_rotation: duration of each 360 degree turn, s",
             options::Range<double>{0.2, 100.0});
+    v.field("hall_size_x", hall_size_x, "hall_drive: hall extent along world x, m",
+            options::Range<double>{20.0, 1000.0});
+    v.field("hall_size_y", hall_size_y, "hall_drive: hall extent along world y, m",
+            options::Range<double>{20.0, 1000.0});
+    v.field("hall_height", hall_height, "hall_drive: hall height, m",
+            options::Range<double>{3.0, 100.0});
+    v.field("drive_speed_mps", drive_speed_mps, "hall_drive: driving speed, m/s",
+            options::Range<double>{0.1, 50.0});
   }
 };
 
@@ -102,6 +114,13 @@ struct ScenarioSample {
 ///   camera reappears where it was `kidnap_back_s` earlier (ground truth absent while black).
 /// - `room_fast_rotation`: room_orbit plus a full 360 degree yaw turn in `rotation_burst_s`
 ///   every 8 s (peak rate 1.5 x 360 / rotation_burst_s deg/s).
+/// - `hall_drive`: a car-like drive (camera 1.65 m above the floor, looking ahead) at
+///   `drive_speed_mps` round a rounded rectangle in a hall of `hall_size_x` x `hall_size_y` x
+///   `hall_height` (the room_size_* options do not apply). The path spans 60 % of the hall;
+///   its corners are 90 degree turns of 12 m radius in the default hall. Boxes are scaled up
+///   (buildings and parked vehicles, 2-8 m) and walls carry 4x the texels and denser shapes.
+///   A driving sequence like KITTI's: forward motion, a wide depth range and turns (use
+///   `fps: 10` for KITTI's rate).
 std::span<const std::string_view> synthetic_scenarios();
 
 /// The synthetic camera. `paced` = true makes acquire() wait for each frame's due time
@@ -126,6 +145,10 @@ class SyntheticCamera final : public CameraSource {
   /// The boxes standing in the room (valid after open()).
   const std::vector<SceneBox>& boxes() const { return boxes_; }
 
+  /// The room's (or hall's) minimum and maximum corners, world, m (valid after open()).
+  Eigen::Vector3d room_lo() const { return {room_lo_[0], room_lo_[1], room_lo_[2]}; }
+  Eigen::Vector3d room_hi() const { return {room_hi_[0], room_hi_[1], room_hi_[2]}; }
+
   /// Renders the view from `T_w_c` into `gray` (CV_8UC1) and optionally `depth` (CV_32FC1,
   /// may be empty), with exposure `gain`. `noise_offset` selects the noise pattern.
   /// No allocation.
@@ -133,9 +156,15 @@ class SyntheticCamera final : public CameraSource {
               float gain = 1.0F) const;
 
  private:
-  enum class Scenario { kOrbit, kLoop, kKidnap, kFastRotation };
+  enum class Scenario { kOrbit, kLoop, kKidnap, kFastRotation, kHallDrive };
   SE3d orbit_pose(double t_s) const;
+  SE3d drive_pose(double t_s) const;
   void place_boxes(std::uint32_t seed);
+  void place_hall_boxes(std::uint32_t seed);
+  // hall_drive: half extents of the path's rectangle and its corner radius, m.
+  double drive_half_x() const;
+  double drive_half_y() const;
+  double drive_radius() const;
 
   std::string scenario_;
   Scenario kind_ = Scenario::kOrbit;
@@ -143,10 +172,17 @@ class SyntheticCamera final : public CameraSource {
   bool paced_;
   CameraIntrinsics intrinsics_;
   std::unique_ptr<FramePool> pool_;
-  std::vector<float> rays_;                            // per pixel (x, y) of the ray at z = 1
-  std::array<std::vector<std::uint8_t>, 6> textures_;  // one per wall, shared by boxes
+  std::vector<float> rays_;  // per pixel (x, y) of the ray at z = 1
+  // One texture per wall (shared by boxes), as a mip pyramid: level l is (size >> l)^2.
+  std::array<std::vector<std::vector<std::uint8_t>>, 6> textures_;
+  int texture_size_ = 0;                      // texels per side of level 0
+  bool use_mips_ = false;                     // pick a texture level per pixel (hall_drive only)
+  std::array<float, 3> wall_texels_per_m_{};  // level-0 texels per metre along each world axis
   std::vector<SceneBox> boxes_;
-  std::vector<std::int8_t> noise_;  // precomputed noise table
+  std::array<float, 3> room_lo_{};   // scene box minimum corner, world, m
+  std::array<float, 3> room_hi_{};   // scene box maximum corner, world, m
+  float box_texture_metres_ = 1.0F;  // one texture tile spans this many metres on a box face
+  std::vector<std::int8_t> noise_;   // precomputed noise table
   std::uint64_t next_seq_ = 0;
   std::int64_t start_wall_ns_ = 0;
   bool started_ = false;

@@ -78,13 +78,14 @@ TEST(SyntheticCamera, SameSeedSameImagesDifferentSeedDifferentImages) {
 }
 
 // Distance from a world point to the nearest scene surface (room walls or box faces).
-double distance_to_scene(const Eigen::Vector3d& p, const SyntheticOptions& o,
-                         const std::vector<SceneBox>& boxes) {
-  const double dx = std::abs(std::abs(p.x()) - 0.5 * o.room_size_x);
-  const double dy = std::abs(std::abs(p.y()) - 0.5 * o.room_size_y);
-  const double dz = std::min(std::abs(p.z()), std::abs(p.z() - o.room_height));
-  double best = std::min({dx, dy, dz});
-  for (const auto& b : boxes) {
+double distance_to_scene(const Eigen::Vector3d& p, const SyntheticCamera& cam) {
+  const Eigen::Vector3d room_lo = cam.room_lo();
+  const Eigen::Vector3d room_hi = cam.room_hi();
+  double best = 1e9;
+  for (int a = 0; a < 3; ++a) {
+    best = std::min({best, std::abs(p[a] - room_lo[a]), std::abs(p[a] - room_hi[a])});
+  }
+  for (const auto& b : cam.boxes()) {
     const Eigen::Vector3d lo = b.lo.cast<double>();
     const Eigen::Vector3d hi = b.hi.cast<double>();
     const bool inside_xy = p.x() >= lo.x() - 1e-3 && p.x() <= hi.x() + 1e-3 &&
@@ -100,7 +101,7 @@ double distance_to_scene(const Eigen::Vector3d& p, const SyntheticOptions& o,
 
 // Depth is geometry: back-projecting a pixel with its depth must land on a scene surface.
 TEST(SyntheticCamera, DepthBackProjectsOntoTheScene) {
-  for (const char* scenario : {"room_orbit", "room_loop"}) {
+  for (const char* scenario : {"room_orbit", "room_loop", "hall_drive"}) {
     SyntheticOptions o = small_options();
     SyntheticCamera cam(scenario, o, false);
     ASSERT_TRUE(cam.open(2).is_ok());
@@ -118,7 +119,8 @@ TEST(SyntheticCamera, DepthBackProjectsOntoTheScene) {
           ASSERT_GT(z, 0.0);
           const Eigen::Vector3d p_c((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
           const Eigen::Vector3d p_w = f->T_w_c_gt * p_c;
-          EXPECT_LT(distance_to_scene(p_w, o, cam.boxes()), 1e-3)
+          // float ray casting: relative precision, the hall reaches 60 m
+          EXPECT_LT(distance_to_scene(p_w, cam), 1e-3 * std::max(1.0, 0.1 * z))
               << scenario << " frame " << i << " pixel " << u << "," << v;
           ++checked;
         }
@@ -144,6 +146,61 @@ TEST(SyntheticCamera, BoxesStandInsideTheRoomClearOfTheCamera) {
       }
     }
   }
+}
+
+TEST(SyntheticCamera, HallDriveIsACarRoundABlock) {
+  SyntheticOptions o = small_options();
+  SyntheticCamera cam("hall_drive", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  EXPECT_DOUBLE_EQ(cam.room_hi().x() - cam.room_lo().x(), o.hall_size_x);
+  EXPECT_DOUBLE_EQ(cam.room_hi().z(), o.hall_height);
+  EXPECT_EQ(cam.boxes().size(), static_cast<std::size_t>(o.num_boxes));
+  // Default hall: the path is a 48 x 30 m block with 12 m corners, 135.4 m round.
+  const double pi = 3.14159265358979;
+  const double lap = 2.0 * (24.0 + 6.0) + 2.0 * pi * 12.0;
+  const double lap_s = lap / o.drive_speed_mps;
+  const double dt = lap_s / 500.0;
+  double turned = 0.0;
+  double length = 0.0;
+  double min_box_distance = 1e9;
+  Eigen::Vector3d prev = cam.sample_at(0.0).T_w_c.translation();
+  double prev_heading = 0.0;
+  for (int i = 1; i <= 500; ++i) {
+    const double t = i * dt;
+    const SE3d T = cam.sample_at(t).T_w_c;
+    const Eigen::Vector3d c = T.translation();
+    const Eigen::Vector3d axis = T.linear().col(2);  // optical axis, world
+    EXPECT_NEAR(c.z(), 1.65, 0.03) << "t=" << t;
+    EXPECT_LT(std::abs(axis.z()), 0.015) << "looks level, t=" << t;
+    // Looks where it goes: the optical axis follows the motion within 1 degree.
+    const Eigen::Vector3d step = c - prev;
+    const Eigen::Vector2d move = step.head<2>().normalized();
+    EXPECT_GT(move.dot(axis.head<2>().normalized()), std::cos(1.0 * 3.14159265358979 / 180.0))
+        << "t=" << t;
+    EXPECT_NEAR(step.head<2>().norm() / dt, o.drive_speed_mps, 0.01 * o.drive_speed_mps)
+        << "t=" << t;
+    const double heading = std::atan2(axis.y(), axis.x());
+    turned += std::remainder(heading - prev_heading, 2.0 * 3.14159265358979);
+    prev_heading = heading;
+    length += step.head<2>().norm();
+    prev = c;
+    for (const auto& b : cam.boxes()) {
+      const double gx = std::max({0.0, b.lo.x() - c.x(), c.x() - b.hi.x()});
+      const double gy = std::max({0.0, b.lo.y() - c.y(), c.y() - b.hi.y()});
+      min_box_distance = std::min(min_box_distance, std::hypot(gx, gy));
+    }
+    EXPECT_TRUE((c.head<2>().array() > cam.room_lo().head<2>().array() + 5.0).all() &&
+                (c.head<2>().array() < cam.room_hi().head<2>().array() - 5.0).all())
+        << "t=" << t;
+  }
+  // One lap: the length of the block, one full turn to the left, back where it started.
+  EXPECT_NEAR(length, lap, 0.01 * lap);
+  EXPECT_NEAR(turned, 2.0 * pi, 0.01);
+  EXPECT_LT((cam.sample_at(lap_s).T_w_c.translation() - cam.sample_at(0.0).T_w_c.translation())
+                .head<2>()
+                .norm(),
+            1e-6);
+  EXPECT_GE(min_box_distance, 3.0 - 1e-6) << "boxes stay clear of the road";
 }
 
 TEST(SyntheticCamera, LoopReturnsToItsStart) {
