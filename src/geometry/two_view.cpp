@@ -53,6 +53,15 @@ constexpr double kMinSpreadPx = 1e-9;
 /// A motion candidate that is not consistent with at least this fraction of the winner's good
 /// points is refuted by them and does not make the choice ambiguous.
 constexpr double kMinRefutedFraction = 0.05;
+/// Plane and parallax fallback: points whose H transfer misses their match by this many
+/// keypoint sigmas are off the plane (those just outside H's gate are plane points with
+/// larger noise and say nothing about the epipole)...
+constexpr double kOffPlaneSigmas = 6.0;
+/// ... and at least this many of them must agree on the epipole.
+constexpr int kMinOffPlanePoints = 40;
+/// Two parallax lines closer to parallel than this (|l_a x l_b| of unit-normal lines, in
+/// pixels) give no epipole.
+constexpr double kMinEpipoleNorm = 1e-9;
 /// Degrees per radian.
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 /// Rays whose angle has a squared sine below this are parallel for the candidate vote
@@ -725,6 +734,89 @@ bool fit_fundamental_8point(std::span<const Eigen::Vector2d> uv0,
 
 namespace {
 
+/// Plane and parallax (the idea behind DEGENSAC): when nearly all points lie on the plane of
+/// H, an 8-point F drawn mostly from the plane is ill-conditioned, but F = [e1]x H is pinned
+/// down by the points off the plane: each one's parallax line x1 x (H x0) passes through the
+/// epipole e1 of image 1. RANSAC over pairs of such lines, each epipole scored with F's
+/// truncated score over all correspondences, then a least-squares epipole over the inlier
+/// lines. False with fewer than kMinOffPlanePoints points off the plane or agreeing on e1.
+struct PlaneParallaxFit {
+  Eigen::Matrix3d F = Eigen::Matrix3d::Zero();
+  std::vector<std::uint8_t> inliers;
+  int num_inliers = 0;
+  int num_off_plane_inliers = 0;
+};
+
+bool plane_and_parallax_fundamental(const Eigen::Matrix3d& H, std::span<const Eigen::Vector2d> uv0,
+                                    std::span<const Eigen::Vector2d> uv1, double sigma_px,
+                                    int iterations, std::uint64_t seed, PlaneParallaxFit& out) {
+  const std::size_t n = uv0.size();
+  const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
+  const double min_off2 = kOffPlaneSigmas * kOffPlaneSigmas * sigma_px * sigma_px;
+  std::vector<std::size_t> off;
+  std::vector<Eigen::Vector3d> lines;  // unit-normal parallax lines of the off-plane points
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d q = H * uv0[i].homogeneous();
+    if (!(std::abs(q.z()) > std::numeric_limits<double>::min())) continue;
+    if ((q.hnormalized() - uv1[i]).squaredNorm() < min_off2) continue;
+    const Eigen::Vector3d l = uv1[i].homogeneous().cross(q);
+    const double norm = l.head<2>().norm();
+    if (!(norm > 0.0)) continue;
+    off.push_back(i);
+    lines.push_back(l / norm);
+  }
+  if (static_cast<int>(off.size()) < kMinOffPlanePoints) return false;
+  auto f_of = [&H](const Eigen::Vector3d& e) {
+    Eigen::Matrix3d e_x;
+    e_x << 0.0, -e.z(), e.y(), e.z(), 0.0, -e.x(), -e.y(), e.x(), 0.0;
+    return Eigen::Matrix3d(e_x * H);
+  };
+  SplitMix64 rng(seed);
+  std::vector<std::uint8_t> mask(n);
+  double best_score = -1.0;
+  Eigen::Vector3d best_e = Eigen::Vector3d::Zero();
+  for (int it = 0; it < iterations; ++it) {
+    const std::size_t a = rng.below(off.size());
+    const std::size_t b = rng.below(off.size());
+    if (a == b) continue;
+    const Eigen::Vector3d e = lines[a].cross(lines[b]);
+    if (!(e.norm() > kMinEpipoleNorm)) continue;
+    int count = 0;
+    const double score =
+        score_fundamental(f_of(e.normalized()), uv0, uv1, inv_var, best_score, mask, count);
+    if (score > best_score) {
+      best_score = score;
+      best_e = e.normalized();
+    }
+  }
+  if (!(best_score > 0.0)) return false;
+  // Least squares over the inlier lines: the unit e minimizing sum (l . e)^2.
+  Eigen::Vector3d e = best_e;
+  for (int pass = 0; pass < kRefitPasses; ++pass) {
+    int count = 0;
+    (void)score_fundamental(f_of(e), uv0, uv1, inv_var, -std::numeric_limits<double>::infinity(),
+                            mask, count);
+    Eigen::Matrix3d ata = Eigen::Matrix3d::Zero();
+    for (std::size_t k = 0; k < off.size(); ++k) {
+      if (mask[off[k]]) ata += lines[k] * lines[k].transpose();
+    }
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(ata);
+    const Eigen::Vector3d refit = es.eigenvectors().col(0);
+    const double score = score_fundamental(f_of(refit), uv0, uv1, inv_var,
+                                           -std::numeric_limits<double>::infinity(), mask, count);
+    if (!(score > best_score)) break;
+    best_score = score;
+    e = refit;
+  }
+  out.F = f_of(e);
+  out.inliers.assign(n, 0);
+  (void)score_fundamental(out.F, uv0, uv1, inv_var, -std::numeric_limits<double>::infinity(),
+                          out.inliers, out.num_inliers);
+  out.num_off_plane_inliers = 0;
+  for (const std::size_t i : off) out.num_off_plane_inliers += out.inliers[i];
+  return out.num_off_plane_inliers >= kMinOffPlanePoints;
+}
+
 /// Essential fallback for an ambiguous homography: at most this fraction of the F inliers
 /// may lie on the homography's plane.
 constexpr double kEssentialFallbackMaxPlanarFraction = 0.85;
@@ -774,9 +866,21 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   std::span<const std::uint8_t> inliers;
   // The essential fallback needs points off the plane: when the homography explains nearly
   // all of F's inliers, E is as undetermined as the plane's twin solution.
+  // Then F = [e1]x H from the points off the plane (plane and parallax) replaces the 8-point
+  // F; without enough of them agreeing on the epipole the pair stays ambiguous.
+  Eigen::Matrix3d F = fit.F;
+  std::span<const std::uint8_t> inliers_f = fit.inliers_f;
+  int num_inliers_f = fit.num_inliers_f;
+  PlaneParallaxFit pp;
   if (force_essential &&
       fit.num_inliers_h > kEssentialFallbackMaxPlanarFraction * fit.num_inliers_f) {
-    return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+    if (!plane_and_parallax_fundamental(fit.H, uv0, uv1, o.sigma_px, o.ransac_iterations, o.seed,
+                                        pp)) {
+      return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+    }
+    F = pp.F;
+    inliers_f = pp.inliers;
+    num_inliers_f = pp.num_inliers;
   }
   if (!force_essential && r_h > o.homography_ratio) {
     r.model = TwoViewModel::kHomography;
@@ -786,9 +890,9 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
     if (candidates.empty()) return refuse(std::move(r), TwoViewRefusal::kPureRotation);
   } else {
     r.model = TwoViewModel::kEssential;
-    r.num_inliers = fit.num_inliers_f;
-    inliers = fit.inliers_f;
-    candidates = decompose_essential(Km.transpose() * fit.F * Km);
+    r.num_inliers = num_inliers_f;
+    inliers = inliers_f;
+    candidates = decompose_essential(Km.transpose() * F * Km);
   }
 
   // 5. Cheirality / reprojection / parallax vote.
@@ -866,7 +970,10 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   if (r.median_parallax_deg < o.min_parallax_deg) {
     return refuse(std::move(r), TwoViewRefusal::kLowParallax);
   }
-  if (r.median_parallax_deg < o.confident_parallax_deg &&
+  // The plane-and-parallax F rests on the few points off the plane: it must show a sharp
+  // translation direction whatever the parallax.
+  const bool from_plane_parallax = pp.num_inliers > 0;
+  if ((r.median_parallax_deg < o.confident_parallax_deg || from_plane_parallax) &&
       (r.model != TwoViewModel::kEssential ||
        r.translation_dir_sigma_deg > o.max_translation_dir_sigma_deg)) {
     return refuse(std::move(r), TwoViewRefusal::kUncertainMotion);

@@ -26,6 +26,15 @@
 ///   too little once its rotation is taken out, count for neither), e.g. the two-fold
 ///   homography ambiguity of a plane under forward motion.
 ///
+/// An ambiguous (or under-triangulated) homography falls back to the essential model. When
+/// the plane holds more than 85 % of the points, the 8-point F is ill-conditioned and the
+/// fallback uses F = [e1]x H instead (plane and parallax, the idea behind DEGENSAC): the
+/// epipole comes from the parallax lines of the points well off the plane (H transfer error
+/// above 6 sigma; at least 40 of them must agree), and the motion must then have a sharp
+/// translation direction (max_translation_dir_sigma_deg) whatever the parallax. This is what
+/// initializes a car driving towards a far facade, whose plane's two decompositions nearly
+/// agree, from the road's parallax.
+///
 /// Scoring note: ORB-SLAM offsets both scores by the 2-dof chi2 threshold, which makes a
 /// correct F out-score a correct H even on a plane (a point-to-line residual is smaller than
 /// a point-to-point one). Here F's offset is one less (the difference of the expected chi2),
