@@ -21,6 +21,8 @@ inline constexpr std::array<std::string_view, 3> kExternalDepthFormats{"auto", "
 inline constexpr std::array<std::string_view, 3> kExternalDepthTimeUnits{"auto", "s", "ns"};
 /// Units of the `external` backend's depth.
 inline constexpr std::array<std::string_view, 2> kExternalDepthScales{"unknown", "metric"};
+/// Values of depth.fuse_merge_duplicates.
+inline constexpr std::array<std::string_view, 3> kMergeModes{"auto", "on", "off"};
 
 /// Options of the `triangulation` backend.
 struct TriangulationOptions {
@@ -139,6 +141,9 @@ struct DepthOptions {
   double fuse_radius_px = 3.0;     ///< search radius of that projection, level-0 px (x scale)
   int fuse_max_hamming = 50;       ///< largest descriptor distance of a projected match
   double fuse_min_view_cos = 0.5;  ///< cosine of the largest angle to a point's mean view ray
+  /// A projected point matching a keypoint that tracks another point merges the two: auto
+  /// (rgbd mode only), on, off.
+  std::string fuse_merge_duplicates = "auto";
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;
@@ -173,6 +178,13 @@ struct DepthOptions {
             "cosine of the largest angle between the new keyframe's view ray and a point's mean "
             "viewing direction for the point to be projected into it",
             options::Range<double>{-1.0, 1.0});
+    v.field("fuse_merge_duplicates", fuse_merge_duplicates,
+            "a covisible point projected onto a keypoint that already tracks another point, "
+            "and matching it, is the same point: merge the two (the one with more observations "
+            "stays, if its position reprojects onto every observation of the other), tying the "
+            "old and new points of a revisited place together: auto (on in rgbd mode, off "
+            "in mono, where the map's scale drifts between them), on, off",
+            options::OneOf{kMergeModes});
     v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
     v.section("plane_sweep", plane_sweep,

@@ -15,6 +15,8 @@
 namespace mer::depth {
 namespace {
 
+constexpr double kChi2TwoDof95 = 5.991;  // 2 dof, 95 %: reprojection gate
+
 constexpr std::size_t kMaxObservationsRead = 64;  // observations scanned per tracked point
 constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a point refinement
 constexpr std::size_t kMinDepthHintPoints = 10;   // tracked points giving a depth range
@@ -113,10 +115,12 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
 
 int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   // Map points of the covisible keyframes, projected into the new keyframe and matched to its
-  // untracked keypoints (ORB-SLAM's SearchInNeighbors without the duplicate merging): points
-  // that tracking missed get their observation here instead of a duplicate by triangulation,
-  // so tracks grow longer and refinement / BA see wider baselines.
+  // keypoints (ORB-SLAM's SearchInNeighbors): points that tracking missed get their
+  // observation here instead of a duplicate by triangulation, so tracks grow longer and
+  // refinement / BA see wider baselines; a point matching a keypoint that tracks another
+  // point is that point's duplicate and the two are merged (fuse_merge_duplicates).
   const auto n = static_cast<std::size_t>(job.num_keypoints);
+  merged_ = 0;
   if (opts_.fuse_keyframes <= 0 || n == 0 || map_.newest_keyframe() == map::kNoId) return 0;
   fuse_kfs_.assign(neighbour_ids_.begin(), neighbour_ids_.end());
   std::vector<map::CovisibleKeyframe> covis(static_cast<std::size_t>(opts_.fuse_keyframes));
@@ -155,6 +159,10 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
         level_sigma2_[static_cast<std::size_t>(std::clamp(l, 0, std::max(0, levels - 1)))]));
   };
   const double log_scale = std::log(std::max(1.0001, levels > 1 ? level_scale(1) : 1.2));
+  // Merging needs old and new points in one scale: RGB-D mode's metric depth gives it; a
+  // monocular map's scale drifts between them (merges there bent the map).
+  const bool merge = opts_.fuse_merge_duplicates == "on" ||
+                     (opts_.fuse_merge_duplicates == "auto" && mode_ == "rgbd");
   std::fill_n(fuse_dist_.begin(), n, std::numeric_limits<int>::max());
   std::vector<std::uint32_t> fused_point(n, map::kNoId);
   for (const std::uint32_t p : fuse_points_) {
@@ -180,14 +188,15 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
     int best = std::numeric_limits<int>::max();
     std::size_t best_k = n;
     for (std::size_t k = 0; k < n; ++k) {
-      if (ids_[k] != map::kNoId) continue;
+      if (ids_[k] != map::kNoId && !merge) continue;
       const features::Keypoint& kp = job.keypoints[k];
       if (pred >= 0 && std::abs(kp.level - pred) > 1) continue;
       const double dx = kp.x - uv.x();
       const double dy = kp.y - uv.y();
       if (dx * dx + dy * dy > r * r) continue;
       // chi2 (2 dof, 95 %) gate on the reprojection error at the keypoint's level.
-      if (dx * dx + dy * dy > 5.991 * level_scale(kp.level) * level_scale(kp.level)) continue;
+      if (dx * dx + dy * dy > kChi2TwoDof95 * level_scale(kp.level) * level_scale(kp.level))
+        continue;
       const int d = features::hamming(pv.descriptor, job.descriptors[k]);
       if (d < best) {
         best = d;
@@ -201,11 +210,53 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   }
   int fused = 0;
   for (std::size_t k = 0; k < n; ++k) {
-    if (fused_point[k] == map::kNoId) continue;
-    ids_[k] = fused_point[k];
-    ++fused;
+    const std::uint32_t p = fused_point[k];
+    if (p == map::kNoId) continue;
+    if (ids_[k] == map::kNoId) {
+      ids_[k] = p;
+      ++fused;
+      continue;
+    }
+    // Keypoint k tracks point q and matches p as well: one point, created twice (e.g. before
+    // and after a loop). The one with more observations stays.
+    const std::uint32_t q = ids_[k];
+    if (map_.point_is_bad(q) || map_.point_is_bad(p)) continue;
+    const bool keep_p = map_.point_num_observations(p) > map_.point_num_observations(q);
+    const std::uint32_t keep = keep_p ? p : q;
+    const std::uint32_t drop = keep_p ? q : p;
+    // The kept position must explain every observation of the other point.
+    if (!explains_observations(keep, drop, K)) continue;
+    if (map_.merge_points(keep, drop) < 0) continue;
+    ids_[k] = keep;
+    ++merged_;
   }
   return fused;
+}
+
+bool KeyframeBuilder::explains_observations(std::uint32_t keep, std::uint32_t drop,
+                                            const geometry::Pinhole& K) {
+  map::PointView pv;
+  if (!map_.read_point(keep, pv)) return false;
+  const std::size_t no = map_.point_observations(drop, obs_);
+  const auto levels = level_sigma2_.size();
+  for (std::size_t i = 0; i < no; ++i) {
+    SE3d T_w_c;
+    if (!map_.keyframe_pose(obs_[i].first, T_w_c)) return false;
+    const std::span<const features::Keypoint> kps = map_.keyframe_keypoints(obs_[i].first);
+    if (obs_[i].second >= kps.size()) return false;
+    const features::Keypoint& kp = kps[obs_[i].second];
+    const Eigen::Vector3d p_c = T_w_c.inverse() * pv.p_w;
+    if (!(p_c.z() > 0.0)) return false;
+    const double sigma2 =
+        levels > 0
+            ? static_cast<double>(level_sigma2_[std::min<std::size_t>(
+                  static_cast<std::size_t>(std::max(0, static_cast<int>(kp.level))), levels - 1)])
+            : 1.0;
+    if ((K.project(p_c) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > kChi2TwoDof95 * sigma2) {
+      return false;
+    }
+  }
+  return true;
 }
 
 void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) {
@@ -297,6 +348,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   // 1. Neighbours, projection of their points, and depth inference.
   pick_neighbours(job);
   rep.fused_observations = fuse_local_points(job);
+  rep.merged_points = merged_;
   views_.clear();
   for (std::size_t v = 0; v < neighbour_ids_.size(); ++v) {
     const std::uint32_t kf = neighbour_ids_[v];
@@ -469,6 +521,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   totals_.new_points += static_cast<std::uint64_t>(rep.new_points);
   totals_.observations += static_cast<std::uint64_t>(rep.tracked_observations);
   totals_.fused_observations += static_cast<std::uint64_t>(rep.fused_observations);
+  totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
   totals_.view_observations += static_cast<std::uint64_t>(rep.view_observations);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
   totals_.total_ms += ms;

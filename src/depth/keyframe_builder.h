@@ -31,6 +31,7 @@ struct KeyframeBuildReport {
   std::uint32_t keyframe = 0xFFFFFFFFu;  ///< new keyframe id
   int tracked_observations = 0;          ///< 3D-2D edges from tracked map-points
   int fused_observations = 0;            ///< of these, found by projecting covisible points
+  int merged_points = 0;                 ///< duplicate points merged (depth.fuse_merge_duplicates)
   int depth_valid = 0;                   ///< keypoints that got a depth
   int new_points = 0;                    ///< map-points created
   int view_observations = 0;   ///< observations of new points in other agreeing neighbours
@@ -47,6 +48,7 @@ struct KeyframeBuildTotals {
   std::uint64_t new_points = 0;
   std::uint64_t observations = 0;
   std::uint64_t fused_observations = 0;  ///< of these, found by projection (depth.fuse_keyframes)
+  std::uint64_t merged_points = 0;       ///< duplicates merged (depth.fuse_merge_duplicates)
   std::uint64_t view_observations = 0;   ///< of new points, beyond their first two views
   std::uint64_t depth_valid = 0;
   std::uint64_t depth_missing = 0;  ///< keyframes the backend had no input for (no depth map)
@@ -87,6 +89,9 @@ class KeyframeBuilder {
   void pick_neighbours(const map::KeyframeJob& job);
   void refine_point(std::uint32_t p, const geometry::Pinhole& K);
   int fuse_local_points(const map::KeyframeJob& job);
+  // Whether point keep's position reprojects within the chi2 gate onto every keypoint that
+  // observes point drop (a merge must not bend any observation).
+  bool explains_observations(std::uint32_t keep, std::uint32_t drop, const geometry::Pinhole& K);
 
   DepthOptions opts_;
   std::string mode_;
@@ -117,6 +122,7 @@ class KeyframeBuilder {
   std::vector<double> obs_depth_w_;         // 1 / depth sigma^2
   std::vector<std::uint32_t> ids_;          // job.point_ids plus the fused associations
   std::vector<int> fuse_dist_;              // descriptor distance of a fused association
+  int merged_ = 0;                          // duplicates merged by the last fuse_local_points
   std::vector<std::uint32_t> fuse_points_;  // candidate points of the projection
   std::vector<std::uint32_t> fuse_kfs_;     // keyframes they come from
 };

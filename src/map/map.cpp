@@ -57,7 +57,8 @@ Map::Map(const MapOptions& opts)
       covis_sorted_(std::make_unique<CovisibleKeyframe[]>(max_kf_)),
       list_scratch_(std::make_unique<CovisibleKeyframe[]>(max_cov_ + 1U)),
       medoid_dist_(std::make_unique<int[]>(std::size_t{max_obs_} * max_obs_)),
-      medoid_row_(std::make_unique<int[]>(max_obs_)) {
+      medoid_row_(std::make_unique<int[]>(max_obs_)),
+      merge_scratch_(std::make_unique<Observation[]>(max_obs_)) {
   const std::size_t n_kp = std::size_t{max_kf_} * max_kp_;
   for (std::size_t i = 0; i < n_kp; ++i) kf_points_[i].store(kNoId, std::memory_order_relaxed);
   std::fill_n(point_cell_.get(), max_pts_, kNoCell);
@@ -396,6 +397,22 @@ void Map::set_point_bad(PointId p) {
   pt_retired_.push(p, retire_epoch());  // unlinked: the epoch orders it before reuse
 }
 
+int Map::merge_points(PointId keep, PointId drop) {
+  if (keep == drop || !own_point(keep) || !own_point(drop)) return -1;
+  const std::uint32_t n = obs_count_[drop];
+  // set_point_bad clears drop's list: copy it first (at most max_obs_ entries).
+  Observation* moved = merge_scratch_.get();
+  std::copy_n(&obs_[std::size_t{drop} * max_obs_], n, moved);
+  set_point_bad(drop);
+  int count = 0;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (add_observation(keep, moved[i].kf(), moved[i].kp())) ++count;
+  }
+  if (count > 0) update_point(keep);
+  ++merged_points_;
+  return count;
+}
+
 bool Map::remove_keyframe(KeyframeId kf, std::uint32_t min_point_observations,
                           std::uint32_t* bad_points) {
   if (bad_points != nullptr) *bad_points = 0;
@@ -553,6 +570,7 @@ MapCounters Map::counters() const noexcept {
   c.point_slots_used = num_points_.load(std::memory_order_relaxed);
   c.removed_keyframes = removed_keyframes_;
   c.bad_points = bad_points_;
+  c.merged_points = merged_points_;
   c.reused_keyframe_slots = reused_kf_slots_;
   c.reused_point_slots = reused_pt_slots_;
   c.keyframe_slots_waiting = kf_retired_.size;

@@ -177,6 +177,7 @@ struct MapCounters {
   std::uint32_t point_slots_used = 0;     ///< high-water mark (num_points())
   std::uint64_t removed_keyframes = 0;    ///< remove_keyframe() calls that removed one
   std::uint64_t bad_points = 0;           ///< points freed (set_point_bad), all causes
+  std::uint64_t merged_points = 0;        ///< of these, duplicates merged (merge_points)
   std::uint64_t reused_keyframe_slots = 0;
   std::uint64_t reused_point_slots = 0;
   std::uint32_t keyframe_slots_waiting = 0;  ///< freed, not reusable yet (or not needed yet)
@@ -231,6 +232,13 @@ class Map {
   /// associations and observations cleared, its slot queued for reuse. Covisibility weights
   /// change at the next update_covisibility.
   void set_point_bad(PointId p);
+  /// Merges two points that are one (duplicates): drop's observations move to keep (those
+  /// of a keyframe that already observes keep, or beyond keep's observation capacity, are
+  /// dropped), drop is freed (set_point_bad) and keep's descriptor / normal are refreshed.
+  /// keep's position is kept. Returns the observations moved, or -1 when either id is not a
+  /// live point or they are the same. Covisibility weights change at the next
+  /// update_covisibility.
+  int merge_points(PointId keep, PointId drop);
   /// Removes keyframe kf: every covisibility edge to it, its observations from its points
   /// (a point whose reference it was takes its first remaining observation as reference),
   /// and frees the points left with fewer than max(1, min_point_observations) observations
@@ -485,6 +493,7 @@ class Map {
   std::uint64_t epoch_own_ = 0;  // writer's copy of epoch_
   std::uint64_t removed_keyframes_ = 0;
   std::uint64_t bad_points_ = 0;
+  std::uint64_t merged_points_ = 0;
   std::uint64_t reused_kf_slots_ = 0;
   std::uint64_t reused_pt_slots_ = 0;
 
@@ -495,6 +504,7 @@ class Map {
   std::unique_ptr<CovisibleKeyframe[]> list_scratch_;  // max_cov + 1
   std::unique_ptr<int[]> medoid_dist_;                 // max_obs x max_obs
   std::unique_ptr<int[]> medoid_row_;                  // max_obs
+  std::unique_ptr<Observation[]> merge_scratch_;       // max_obs
 
   alignas(platform::kCacheLine) std::atomic<std::uint32_t> num_keyframes_{0};
   std::atomic<KeyframeId> newest_kf_{kNoId};

@@ -102,7 +102,22 @@ TEST(MerSlamSynthetic, FusingCovisiblePointsAddsObservations) {
   EXPECT_GT(static_cast<int>(s["map"]["fused_observations"]), 0);
   EXPECT_GT(static_cast<int>(s["map"]["view_observations"]), 0);
   EXPECT_GT(static_cast<int>(s["map"]["new_points"]), 0);
+  EXPECT_EQ(static_cast<int>(s["map"]["merged_points"]), 0) << "no duplicate merging in mono";
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
+}
+
+// RGB-D: where the orbit comes back to its start, the first keyframes' points and their
+// duplicates made since are merged (depth.fuse_merge_duplicates: auto).
+TEST(MerSlamSynthetic, RgbdMergesTheDuplicatesOfARevisitedPlace) {
+  const auto d = fresh_dir("mer_e2e_merge");
+  const auto r = run_command(quote(kExe) + " --lockstep --mode rgbd --input synthetic:room_orbit " +
+                             "--quiet --output " + quote(d.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  cv::FileStorage s = open_summary(d);
+  ASSERT_TRUE(s.isOpened());
+  EXPECT_GT(static_cast<int>(s["map"]["merged_points"]), 0);
+  EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 100.0);
+  EXPECT_LT(static_cast<double>(s["accuracy"]["ate_rmse_m"]), 0.01);
 }
 
 // Culling keeps the map bounded: room_loop with 20 keyframe and 4000 point slots. Without

@@ -289,6 +289,39 @@ TEST(Map, ObservationRules) {
   EXPECT_EQ(add_pt(m, Eigen::Vector3d(0, 0, 3), kfs[0], 0), q + 1);
 }
 
+TEST(Map, MergingDuplicatesMovesObservationsAndFreesTheOther) {
+  MapOptions o = small_options();
+  o.max_observations_per_point = 3;
+  Map m(o);
+  const KfData d = make_kf(10, 1);
+  std::vector<KeyframeId> kfs;
+  for (int i = 0; i < 5; ++i) kfs.push_back(add_kf(m, d, pose_at(i, 0), i));
+  // a: kf 0 and 1; b (its duplicate): kf 1 (another keypoint), 2 and 3.
+  const PointId a = add_pt(m, Eigen::Vector3d(0, 0, 3), kfs[0], 0);
+  ASSERT_TRUE(m.add_observation(a, kfs[1], 0));
+  const PointId b = add_pt(m, Eigen::Vector3d(0.01, 0, 3), kfs[1], 1);
+  ASSERT_TRUE(m.add_observation(b, kfs[2], 2));
+  ASSERT_TRUE(m.add_observation(b, kfs[3], 3));
+  EXPECT_EQ(m.merge_points(a, a), -1);
+
+  // kf 1 already sees a: that observation of b is dropped; kf 2 moves; kf 3 would be a's
+  // fourth observation (capacity 3) and is dropped.
+  EXPECT_EQ(m.merge_points(a, b), 1);
+  EXPECT_TRUE(m.point_is_bad(b));
+  EXPECT_EQ(m.point_num_observations(a), 3u);
+  EXPECT_EQ(m.keyframe_point(kfs[1], 0), a);
+  EXPECT_EQ(m.keyframe_point(kfs[1], 1), kNoId);
+  EXPECT_EQ(m.keyframe_point(kfs[2], 2), a);
+  EXPECT_EQ(m.keyframe_point(kfs[3], 3), kNoId);
+  PointView v;
+  ASSERT_TRUE(m.read_point(a, v));
+  EXPECT_EQ(v.p_w, Eigen::Vector3d(0, 0, 3)) << "the kept point keeps its position";
+  EXPECT_EQ(m.counters().merged_points, 1u);
+  EXPECT_EQ(m.counters().bad_points, 1u);
+  EXPECT_EQ(m.merge_points(a, b), -1) << "b is gone";
+  EXPECT_EQ(m.merge_points(b, a), -1);
+}
+
 TEST(Map, RepresentativeDescriptorIsTheHammingMedoid) {
   MapOptions o = small_options();
   o.max_observations_per_point = 8;
