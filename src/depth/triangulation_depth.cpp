@@ -66,6 +66,14 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
     if ((view.T_w_c.translation() - c_k).norm() < std::numeric_limits<double>::epsilon()) continue;
     best_dist_.assign(m, std::numeric_limits<int>::max());
     best_of_.assign(m, kNoSupport);
+    candidates_.clear();
+    for (std::size_t j = 0; j < m; ++j) {
+      if (!is_free(view.point_ids, j)) continue;
+      const features::Keypoint& kq = view.keypoints[j];
+      candidates_.push_back({K.unproject({kq.x, kq.y}),
+                             opts_.epipolar_sigmas * std::sqrt(sigma2(kq.level)),
+                             static_cast<std::uint32_t>(j), kq.level});
+    }
     for (std::size_t i = 0; i < n; ++i) {
       if (!is_free(req.point_ids, i)) continue;
       const features::Keypoint& kp = req.keypoints[i];
@@ -76,18 +84,15 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       int best = std::numeric_limits<int>::max();
       int second = std::numeric_limits<int>::max();
       std::size_t best_j = m;
-      for (std::size_t j = 0; j < m; ++j) {
-        if (!is_free(view.point_ids, j)) continue;
-        const features::Keypoint& kq = view.keypoints[j];
-        if (std::abs(kq.level - kp.level) > opts_.max_level_difference) continue;
-        const Eigen::Vector3d x_j = K.unproject({kq.x, kq.y});
-        const double dist_px = std::abs(l.dot(x_j)) / l_norm * f;
-        if (dist_px > opts_.epipolar_sigmas * std::sqrt(sigma2(kq.level))) continue;
-        const int d = features::hamming(req.descriptors[i], view.descriptors[j]);
+      for (const Candidate& c : candidates_) {
+        if (std::abs(c.level - kp.level) > opts_.max_level_difference) continue;
+        const double dist_px = std::abs(l.dot(c.x)) / l_norm * f;
+        if (dist_px > c.band_px) continue;
+        const int d = features::hamming(req.descriptors[i], view.descriptors[c.j]);
         if (d < best) {
           second = best;
           best = d;
-          best_j = j;
+          best_j = c.j;
         } else if (d < second) {
           second = d;
         }

@@ -10,6 +10,8 @@
 
 #include <vector>
 
+#include <Eigen/Core>
+
 #include "depth/depth_inference.h"
 #include "depth/depth_options.h"
 
@@ -28,6 +30,14 @@ class TriangulationDepth final : public DepthInference {
   std::vector<std::uint32_t> match_;    // [keypoint * views + view]: matched keypoint or none
   std::vector<int> best_dist_;          // per keypoint of one view: distance of its match
   std::vector<std::uint32_t> best_of_;  // per keypoint of one view: the keypoint it went to
+  // The free keypoints of one view, computed once per view rather than once per pair.
+  struct Candidate {
+    Eigen::Vector3d x;     // normalized image point
+    double band_px = 0.0;  // epipolar band half-width at its level, px
+    std::uint32_t j = 0;   // keypoint index in the view
+    int level = 0;
+  };
+  std::vector<Candidate> candidates_;
 };
 
 }  // namespace mer::depth
