@@ -448,10 +448,11 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
   constexpr float kTiny = 1e-9F;
   constexpr float kHuge = 1e30F;
 
-  // Mip level for a pixel seeing a surface at depth t, `texels_per_m` level-0 texels per
-  // metre, whose normal makes cosine `cos_n` with the ray (0 without mips).
-  auto level_for = [&](float t, float texels_per_m, float cos_n) {
+  // Mip level for ray `d` meeting, at depth t, a surface with `texels_per_m` level-0 texels
+  // per metre whose normal is world axis `normal_axis` (0 without mips).
+  auto level_for = [&](const Eigen::Vector3f& d, float t, float texels_per_m, int normal_axis) {
     if (!use_mips_) return 0;
+    const float cos_n = std::abs(d[normal_axis]) / d.norm();
     const float footprint = t * inv_f * texels_per_m / std::max(cos_n, kMinObliqueCos);
     if (footprint <= 1.0F) return 0;
     return std::min(static_cast<int>(std::log2(footprint)), num_levels - 1);
@@ -574,12 +575,11 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
       }
       const Eigen::Vector3f p = o + t * d;
       float value = 0.0F;
-      const float cos_n = std::abs(d[hit_box != nullptr ? box_axis : axis]) / d.norm();
       if (hit_box != nullptr) {
         const int pa = box_axis == 0 ? 1 : 0;
         const int qa = box_axis == 2 ? 1 : 2;
         value = sample(textures_[static_cast<std::size_t>(hit_box->texture)],
-                       level_for(t, box_texels_per_m, cos_n), wrap(p[pa] - hit_box->lo[pa]),
+                       level_for(d, t, box_texels_per_m, box_axis), wrap(p[pa] - hit_box->lo[pa]),
                        wrap(p[qa] - hit_box->lo[qa]));
       } else {
         const int pa = axis == 0 ? 1 : 0;
@@ -589,7 +589,7 @@ void SyntheticCamera::render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth,
         const float texels_per_m = std::max(wall_texels_per_m_[static_cast<std::size_t>(pa)],
                                             wall_texels_per_m_[static_cast<std::size_t>(qa)]);
         value = sample(textures_[static_cast<std::size_t>(axis * 2 + side)],
-                       level_for(t, texels_per_m, cos_n), fu, fv);
+                       level_for(d, t, texels_per_m, axis), fu, fv);
       }
       value *= gain;
       if (noisy) {

@@ -154,10 +154,7 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   const Eigen::Vector3d centre = job.T_w_c.translation();
   const geometry::Pinhole& K = job.K;
   const int levels = static_cast<int>(level_sigma2_.size());
-  auto level_scale = [&](int l) {
-    return std::sqrt(static_cast<double>(
-        level_sigma2_[static_cast<std::size_t>(std::clamp(l, 0, std::max(0, levels - 1)))]));
-  };
+  auto level_scale = [&](int l) { return std::sqrt(level_sigma2(l)); };
   const double log_scale = std::log(std::max(1.0001, levels > 1 ? level_scale(1) : 1.2));
   // Merging needs old and new points in one scale: RGB-D mode's metric depth gives it; a
   // monocular map's scale drifts between them (merges there bent the map).
@@ -233,12 +230,17 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   return fused;
 }
 
+double KeyframeBuilder::level_sigma2(int level) const {
+  if (level_sigma2_.empty()) return 1.0;
+  const int last = static_cast<int>(level_sigma2_.size()) - 1;
+  return static_cast<double>(level_sigma2_[static_cast<std::size_t>(std::clamp(level, 0, last))]);
+}
+
 bool KeyframeBuilder::explains_observations(std::uint32_t keep, std::uint32_t drop,
                                             const geometry::Pinhole& K) {
   map::PointView pv;
   if (!map_.read_point(keep, pv)) return false;
   const std::size_t no = map_.point_observations(drop, obs_);
-  const auto levels = level_sigma2_.size();
   for (std::size_t i = 0; i < no; ++i) {
     SE3d T_w_c;
     if (!map_.keyframe_pose(obs_[i].first, T_w_c)) return false;
@@ -247,12 +249,8 @@ bool KeyframeBuilder::explains_observations(std::uint32_t keep, std::uint32_t dr
     const features::Keypoint& kp = kps[obs_[i].second];
     const Eigen::Vector3d p_c = T_w_c.inverse() * pv.p_w;
     if (!(p_c.z() > 0.0)) return false;
-    const double sigma2 =
-        levels > 0
-            ? static_cast<double>(level_sigma2_[std::min<std::size_t>(
-                  static_cast<std::size_t>(std::max(0, static_cast<int>(kp.level))), levels - 1)])
-            : 1.0;
-    if ((K.project(p_c) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > kChi2TwoDof95 * sigma2) {
+    if ((K.project(p_c) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() >
+        kChi2TwoDof95 * level_sigma2(kp.level)) {
       return false;
     }
   }
@@ -274,8 +272,7 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
     const features::Keypoint& kp = kps[obs_[o].second];
     obs_pose_[used] = T_w_c.inverse();
     obs_uv_[used] = Eigen::Vector2d(kp.x, kp.y);
-    obs_w_[used] = 1.0 / level_sigma2_[static_cast<std::size_t>(std::clamp<int>(
-                             kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1))];
+    obs_w_[used] = 1.0 / level_sigma2(kp.level);
     obs_depth_[used] = 0.0;
     obs_depth_w_[used] = 0.0;
     if (fit_depth_) {

@@ -89,6 +89,8 @@ class KeyframeBuilder {
   void pick_neighbours(const map::KeyframeJob& job);
   void refine_point(std::uint32_t p, const geometry::Pinhole& K);
   int fuse_local_points(const map::KeyframeJob& job);
+  // Keypoint position variance at pyramid `level` (clamped to the known levels; 1 without).
+  double level_sigma2(int level) const;
   // Whether point keep's position reprojects within the chi2 gate onto every keypoint that
   // observes point drop (a merge must not bend any observation).
   bool explains_observations(std::uint32_t keep, std::uint32_t drop, const geometry::Pinhole& K);
