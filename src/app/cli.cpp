@@ -37,8 +37,9 @@ std::string usage() {
   --input URI        frame source (default: synthetic:room_orbit):
                        synthetic:NAME  tum:DIR  euroc:DIR  kitti:DIR  rec:FILE
                        v4l2:/dev/videoN  libcamera:ID
-  --output DIR       write trajectory.txt, keyframes.txt, frames.csv, latency.csv,
-                     summary.json into DIR (created if missing)
+  --output DIR       write trajectory.txt, keyframes.txt, keyframes_final.txt,
+                     frames.csv, latency.csv, summary.json into DIR (created if
+                     missing)
   --mode mono|rgbd   sensor mode (rgbd needs a source with depth)
   --lockstep         deterministic sequential replay: no drops, as fast as possible
   --max-frames N     stop after N frames from the source

@@ -122,6 +122,8 @@ int main(int argc, char** argv) {
     }
     drain.stop();  // print pending warnings before the summary
     info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
+    info.accuracy_keyframes = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
+                                                "keyframes_final.txt");
     if (pipe.stats().final_ba.ran && !args.output_dir.empty()) {
       if (Status w =
               app::write_final_ba_trajectory(args.output_dir, pipe.stats().final_ba.corrections);

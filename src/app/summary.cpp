@@ -106,6 +106,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     }
   };
   accuracy_json("accuracy", info.accuracy);
+  accuracy_json("accuracy_keyframes", info.accuracy_keyframes);
   if (info.final_ba) {
     const pipeline::FinalBaStats& f = st.final_ba;
     j << "  \"final_ba\": {\"keyframes\": " << f.keyframes << ", \"points\": " << f.points
@@ -234,6 +235,11 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
        << a.tracked_after_init_pct << " % after init\n";
   } else {
     os << "  ATE: " << info.accuracy.note << "\n";
+  }
+  if (info.accuracy_keyframes.available) {
+    const AccuracyReport& a = info.accuracy_keyframes;
+    os << "  keyframe ATE (final map, " << a.pairs << " keyframes): rmse " << std::setprecision(4)
+       << a.ate_rmse_m << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of path\n";
   }
   if (info.final_ba && info.accuracy_final_ba.available) {
     const AccuracyReport& a = info.accuracy_final_ba;

@@ -29,10 +29,11 @@ struct RunInfo {
   hal::CameraIntrinsics intrinsics;  ///< calibration in use
   std::string sensor_mode;           ///< mono | rgbd
   bool stopped_by_signal = false;
-  std::string error;                 ///< non-empty when the run failed
-  AccuracyReport accuracy;           ///< ATE against the source's ground truth (when it had one)
-  bool final_ba = false;             ///< pipeline.final_ba ran and its trajectory was written
-  AccuracyReport accuracy_final_ba;  ///< ATE of trajectory_final_ba.txt
+  std::string error;                  ///< non-empty when the run failed
+  AccuracyReport accuracy;            ///< ATE against the source's ground truth (when it had one)
+  bool final_ba = false;              ///< pipeline.final_ba ran and its trajectory was written
+  AccuracyReport accuracy_final_ba;   ///< ATE of trajectory_final_ba.txt
+  AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
 };
 
 /// Renders summary.json.

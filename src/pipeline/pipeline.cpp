@@ -1,6 +1,10 @@
 #include "pipeline/pipeline.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
 #include <thread>
 
 #include "platform/alloc_counter.h"
@@ -156,6 +160,7 @@ Status Pipeline::init(const std::string& output_dir) {
   lat_keyframe_ = std::make_unique<platform::LatencyRecorder>("keyframe", 0, trace);
   lat_local_ba_ = std::make_unique<platform::LatencyRecorder>(
       "local_ba", ms_to_ns(config_.backend.max_time_ms), trace);
+  output_dir_ = output_dir;
   Status s = output_.open(output_dir, config_.output);
   if (!s.is_ok()) return s;
   if (b.lock_memory) {
@@ -209,9 +214,37 @@ Status Pipeline::run() {
   stats_.source = camera_.counters();
   Status c = output_.close();
   if (config_.pipeline.final_ba && stats_.frames_processed > 0) run_final_ba();
+  const Status k = write_final_keyframes();
   finish_stats(t0);
   if (!s.is_ok()) return s;
-  return c;
+  return c.is_ok() ? k : c;
+}
+
+Status Pipeline::write_final_keyframes() const {
+  if (output_dir_.empty()) return Status::ok();
+  // Every stage has stopped: reading the map here races with nobody.
+  std::vector<std::pair<std::int64_t, SE3d>> poses;
+  const map::KeyframeId n = map_->num_keyframes();
+  for (map::KeyframeId id = 0; id < n; ++id) {
+    SE3d T;
+    if (map_->keyframe_is_live(id) && map_->keyframe_pose(id, T)) {
+      poses.emplace_back(map_->keyframe_t_ns(id), T);
+    }
+  }
+  std::sort(poses.begin(), poses.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
+  std::FILE* f = std::fopen(path.c_str(), "w");
+  if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));
+  char line[256];
+  bool ok = true;
+  for (const auto& [t_ns, T] : poses) {
+    const int len = format_tum_line(line, sizeof line, t_ns, T);
+    ok = ok && len > 0 &&
+         std::fwrite(line, 1, static_cast<std::size_t>(len), f) == static_cast<std::size_t>(len);
+  }
+  if (std::fclose(f) != 0 || !ok) return runtime_error("error writing '" + path + "'");
+  return Status::ok();
 }
 
 void Pipeline::finish_stats(std::int64_t t_start_ns) {

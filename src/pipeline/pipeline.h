@@ -183,6 +183,10 @@ class Pipeline {
   Status run_threaded();
   void finish_stats(std::int64_t t_start_ns);
   void run_final_ba();
+  /// Writes `output_dir`/keyframes_final.txt: the live keyframes' poses in the final map
+  /// (after local BA and the final BA), in time order.
+  Status write_final_keyframes() const;
+  std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;
   bool source_timed_out(std::int64_t last_frame_ns) const;

@@ -87,6 +87,27 @@ TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
   EXPECT_LT(ate, 0.02) << "RGB-D synthetic after final BA (the run itself is ~5 mm)";
   cv::FileStorage sp = open_summary(plain);
   EXPECT_TRUE(sp["final_ba"].empty());
+  // keyframes_final.txt: one line per live keyframe of the final map, each at a keyframe's
+  // time, scored in accuracy_keyframes.
+  for (auto* fs : {&s, &sp}) {
+    const int live = static_cast<int>((*fs)["map"]["live_keyframes"]);
+    EXPECT_GE(live, 2);
+    EXPECT_EQ(static_cast<int>((*fs)["accuracy_keyframes"]["pairs"]), live);
+    const double kf_ate = static_cast<double>((*fs)["accuracy_keyframes"]["ate_rmse_m"]);
+    EXPECT_GT(kf_ate, 0.0);
+    EXPECT_LT(kf_ate, 0.02);
+  }
+  EXPECT_EQ(count_lines((ba / "keyframes_final.txt").string()),
+            static_cast<int>(s["map"]["live_keyframes"]));
+  const std::string created = read_text((plain / "keyframes.txt").string());
+  std::FILE* f = std::fopen((plain / "keyframes_final.txt").string().c_str(), "r");
+  ASSERT_NE(f, nullptr);
+  char line[256];
+  while (std::fgets(line, sizeof line, f) != nullptr) {
+    const std::string stamp = std::string(line).substr(0, std::string(line).find(' '));
+    EXPECT_NE(created.find(stamp + " "), std::string::npos) << stamp << " is no keyframe time";
+  }
+  std::fclose(f);
 }
 
 // Monocular mapping by default: covisible points are found again by projection into a new
