@@ -5,6 +5,7 @@
 /// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
 
 #include "backend/local_ba.h"
+#include "backend/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/options.h"
 #include "depth/depth_options.h"
@@ -24,6 +25,7 @@ struct SlamConfig {
   depth::DepthOptions depth;
   backend::LocalBaOptions backend;
   backend::CullingOptions culling;
+  backend::LoopOptions loop;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;
@@ -37,6 +39,7 @@ struct SlamConfig {
     v.section("depth", depth, "keyframe creation and depth inference");
     v.section("backend", backend, "local bundle adjustment of the covisibility window");
     v.section("culling", culling, "removal of redundant keyframes and bad map points");
+    v.section("loop", loop, "loop closure (retrieval, Sim(3) check, pose graph)");
     v.section("board", board, "thread placement and latency budgets");
     v.section("telemetry", telemetry, "latency and allocation accounting");
     v.section("output", output, "output files");

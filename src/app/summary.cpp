@@ -180,6 +180,15 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << num(ba.runs ? ba.lock_wait_ms / static_cast<double>(ba.runs) : 0.0)
     << ", \"lock_wait_max_ms\": " << num(ba.max_lock_wait_ms)
     << ", \"coalesced_keyframes\": " << st.backend_coalesced << "},\n";
+  const backend::LoopTotals& lp = st.loop;
+  j << "  \"loop\": {\"keyframes_checked\": " << lp.keyframes_checked
+    << ", \"candidates_checked\": " << lp.candidates_checked
+    << ", \"loops_closed\": " << lp.loops_closed << ", \"merged_points\": " << lp.merged_points
+    << ", \"max_ms\": " << num(lp.max_ms) << ", \"max_full_ba_ms\": " << num(lp.max_full_ba_ms)
+    << ", \"last_loop_seq\": " << lp.last_loop.loop_seq
+    << ", \"last_inliers\": " << lp.last_loop.inliers
+    << ", \"last_scale\": " << num(lp.last_loop.scale)
+    << ", \"last_shift\": " << num(lp.last_loop.shift) << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -240,6 +249,11 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     const AccuracyReport& a = info.accuracy_keyframes;
     os << "  keyframe ATE (final map, " << a.pairs << " keyframes): rmse " << std::setprecision(4)
        << a.ate_rmse_m << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of path\n";
+  }
+  if (st.loop.loops_closed > 0) {
+    os << "  loops closed: " << st.loop.loops_closed << " (last onto frame "
+       << st.loop.last_loop.loop_seq << ", scale " << std::setprecision(4)
+       << st.loop.last_loop.scale << ", " << st.loop.merged_points << " points merged)\n";
   }
   if (info.final_ba && info.accuracy_final_ba.available) {
     const AccuracyReport& a = info.accuracy_final_ba;

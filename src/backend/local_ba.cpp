@@ -497,6 +497,11 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   // sparse (each keyframe shares points with a few others only).
   sopts.linear_solver_type =
       window.size() <= kMaxDenseSchurKeyframes ? ceres::DENSE_SCHUR : ceres::SPARSE_SCHUR;
+  // Eigen's sparse Cholesky for the large ones: SuiteSparse's runs OpenMP regions (a thread
+  // pool of its own) on the back-end thread, which also runs the full BA after a loop.
+  if (ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::EIGEN_SPARSE)) {
+    sopts.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  }
   sopts.max_num_iterations = max_iterations;
   sopts.num_threads = 1;
   sopts.logging_type = ceres::SILENT;

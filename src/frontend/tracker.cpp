@@ -61,6 +61,7 @@ Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pin
       height_(height),
       mode_(std::move(mode)),
       policy_(opts.keyframe.for_mode(mode_), width, height) {
+  spatial_max_age_ns_ = static_cast<std::int64_t>(opts.spatial_max_age_s * 1e9);
   focal_.estimated = focal_auto;
   focal_.initial = K.fx;
   focal_.value = K.fx;
@@ -186,12 +187,16 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   num_cand_ = 0;
   const auto cap = static_cast<int>(cand_id_.size());
   const std::uint32_t num_points = map_.num_points();
-  auto add = [&](std::uint32_t p) {
+  auto add = [&](std::uint32_t p, std::int64_t min_ref_t_ns) {
     if (p >= num_points || num_cand_ >= cap) return false;
     if (stamp_[p] == frame_stamp_) return false;
     stamp_[p] = frame_stamp_;
     map::PointView pv;
     if (!map_.read_point(p, pv)) return false;
+    if (min_ref_t_ns > 0 && map_.keyframe_t_ns(pv.ref_keyframe) < min_ref_t_ns) {
+      stamp_[p] = 0;  // Q_T may still take it
+      return false;
+    }
     const auto c = static_cast<std::size_t>(num_cand_++);
     cand_id_[c] = p;
     cand_p_w_[c] = pv.p_w;
@@ -228,7 +233,7 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
     const auto n = static_cast<std::uint32_t>(map_.keyframe_keypoints(kf).size());
     for (std::uint32_t k = 0; k < n; ++k) {
       const std::uint32_t p = map_.keyframe_point(kf, k);
-      if (p != map::kNoId && add(p)) ++qt;
+      if (p != map::kNoId && add(p, 0)) ++qt;
     }
   }
   // Q_S: points in the cells visible from the predicted pose.
@@ -236,7 +241,11 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   const double near = kQueryNearFraction * median_depth_;
   const std::size_t ns =
       map_.query_visible(T_c_w.inverse(), K_, width_, height_, near, far, query_buf_);
-  for (std::size_t i = 0; i < ns; ++i) (void)add(query_buf_[i]);
+  // Points made long ago are left to Q_T: in monocular mode they carry the drift since, and
+  // tracking them would close the loop without correcting it (loop closure does that).
+  const std::int64_t min_ref_t_ns =
+      spatial_max_age_ns_ > 0 ? frame_t_ns_ - spatial_max_age_ns_ : std::int64_t{0};
+  for (std::size_t i = 0; i < ns; ++i) (void)add(query_buf_[i], min_ref_t_ns);
   r.query_temporal = qt;
   r.query_spatial = static_cast<std::int32_t>(ns);
   r.query_total = num_cand_;
@@ -868,13 +877,32 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
 
 // ---- Entry point -------------------------------------------------------------------------
 
+void Tracker::follow_map_correction() {
+  if (map_.correction_count() == correction_count_seen_) return;
+  geometry::Sim3d S;
+  std::uint32_t count = 0;
+  if (!map_.read_correction(S, count)) return;  // retried at the next frame
+  // The part published since the last frame: S * seen^-1.
+  const geometry::Sim3d D = S * correction_seen_.inverse();
+  correction_seen_ = S;
+  correction_count_seen_ = count;
+  if (have_pose_) T_c_w_ = geometry::apply_to_pose(D, T_c_w_.inverse()).inverse();
+  last_T_w_c_ = geometry::apply_to_pose(D, last_T_w_c_);
+  for (SE3d& T : recent_T_w_c_) T = geometry::apply_to_pose(D, T);
+  velocity_.translation() *= D.s;
+  median_depth_ *= D.s;
+  MER_LOG_INFO("tracking follows a map correction (scale %.4f, shift %.3f)", D.s, D.t.norm());
+}
+
 TrackingResult Tracker::spin_once(const hal::Frame& frame) {
   // Quiescent point: nothing read from the map in earlier frames is held past here except
   // ids that are re-checked (map.h, slot reclamation).
   map_.reader_quiescent(map_reader_);
+  follow_map_correction();
   TrackingResult r;
   r.seq = frame.seq;
   r.t_ns = frame.t_ns;
+  frame_t_ns_ = frame.t_ns;
   r.focal = K_.fx;
   r.has_ground_truth = frame.has_ground_truth;
   r.T_w_c_gt = frame.T_w_c_gt;

@@ -32,6 +32,7 @@
 #include "frontend/tracking_result.h"
 #include "geometry/camera_model.h"
 #include "geometry/pnp.h"
+#include "geometry/sim3.h"
 #include "hal/camera.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
@@ -115,6 +116,10 @@ class Tracker {
   int project_and_match(const SE3d& T_c_w, double radius_px, bool tight);
   int collect_correspondences();
   bool estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r);
+  /// Moves the poses this tracker keeps (last pose, motion, recent frames) by the map
+  /// corrections published since the last frame (loop closure), so that the prediction
+  /// lands where the corrected map is.
+  void follow_map_correction();
   bool track(const hal::Frame& frame, TrackingResult& r);
   bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
   bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
@@ -176,6 +181,13 @@ class Tracker {
   std::vector<KeyframeHistogram> recent_;  // histograms of the last B localized frames
   std::size_t recent_next_ = 0;
   std::vector<std::uint32_t> qt_keyframes_;
+
+  // Loop corrections of the map followed so far (Map::publish_correction).
+  geometry::Sim3d correction_seen_;
+  std::uint32_t correction_count_seen_ = 0;
+
+  std::int64_t spatial_max_age_ns_ = 0;  // Q_S: older reference keyframes skipped (0: none)
+  std::int64_t frame_t_ns_ = 0;          // timestamp of the frame being tracked
 
   // Motion.
   bool have_pose_ = false;

@@ -120,9 +120,11 @@ struct TrackingOptions {
                                          ///< with larger images (capped by the map's capacity)
   int temporal_frames = 5;               ///< B: the keyframes tracked in the last B frames give Q_T
   int max_query_points = 12000;          ///< map-points considered per frame (Q_T and Q_S together)
-  double query_far = 4.0;  ///< Q_S depth range: this many times the median tracked depth
-  int min_inliers = 25;    ///< fewer PnP inliers: the frame is lost
-  int busy_work_us = 0;    ///< extra busy-wait per frame, us (load tests of the drop policy)
+  double query_far = 4.0;          ///< Q_S depth range: this many times the median tracked depth
+  double spatial_max_age_s = 0.0;  ///< Q_S skips points whose reference keyframe is older, s
+                                   ///< (0: no limit)
+  int min_inliers = 25;            ///< fewer PnP inliers: the frame is lost
+  int busy_work_us = 0;  ///< extra busy-wait per frame, us (load tests of the drop policy)
   double rgbd_max_depth_step = 0.03;  ///< sensor depth at a keypoint: relative step across its
                                       ///< 2x2 pixels above which it is a depth edge (refused)
 
@@ -145,6 +147,11 @@ struct TrackingOptions {
     v.field("query_far", query_far,
             "spatial query depth range, in multiples of the median tracked depth",
             options::Range<double>{1.0, 1000.0});
+    v.field("spatial_max_age_s", spatial_max_age_s,
+            "Q_S skips points whose reference keyframe is older than this, s (0: no limit); "
+            "in mono such points carry the scale drift since, and a limit leaves them to loop "
+            "closure",
+            options::Range<double>{0.0, 1e9});
     v.field("min_inliers", min_inliers, "fewer PnP inliers marks the frame lost",
             options::Range<int>{3, 100000});
     v.field("busy_work_us", busy_work_us,

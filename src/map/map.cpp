@@ -161,6 +161,44 @@ void Map::write_pose(KeyframeId kf, const SE3d& T_w_c, double scale) noexcept {
   s.pose_lock.write_end();
 }
 
+void Map::publish_correction(const geometry::Sim3d& S_new_old) noexcept {
+  correction_own_ = S_new_old * correction_own_;
+  const std::uint32_t count = correction_count_.load(std::memory_order_relaxed) + 1U;
+  correction_lock_.write_begin();
+  for (int i = 0; i < 9; ++i) {
+    store_payload(correction_[kPoseRotation + i], pack_double(correction_own_.R(i % 3, i / 3)));
+  }
+  for (int i = 0; i < 3; ++i) {
+    store_payload(correction_[kPoseTranslation + i], pack_double(correction_own_.t[i]));
+  }
+  store_payload(correction_[kPoseScale], pack_double(correction_own_.s));
+  store_payload(correction_[kPoseWords], std::uint64_t{count});
+  correction_lock_.write_end();
+  correction_count_.store(count, std::memory_order_release);
+}
+
+std::uint32_t Map::correction_count() const noexcept {
+  return correction_count_.load(std::memory_order_acquire);
+}
+
+bool Map::read_correction(geometry::Sim3d& S, std::uint32_t& count) const noexcept {
+  std::uint64_t w[kCorrectionWords];
+  if (!correction_lock_.read([&] {
+        for (int i = 0; i < kCorrectionWords; ++i) w[i] = load_payload(correction_[i]);
+      })) {
+    return false;
+  }
+  count = static_cast<std::uint32_t>(w[kPoseWords]);
+  if (count == 0U) {
+    S = geometry::Sim3d{};
+    return true;
+  }
+  for (int i = 0; i < 9; ++i) S.R(i % 3, i / 3) = unpack_double(w[kPoseRotation + i]);
+  for (int i = 0; i < 3; ++i) S.t[i] = unpack_double(w[kPoseTranslation + i]);
+  S.s = unpack_double(w[kPoseScale]);
+  return true;
+}
+
 void Map::write_position(PointId p, const Eigen::Vector3d& p_w) noexcept {
   PointSlot& s = points_[p];
   s.lock.write_begin();

@@ -119,6 +119,7 @@
 #include "core/status.h"
 #include "features/keypoint.h"
 #include "geometry/camera_model.h"
+#include "geometry/sim3.h"
 #include "map/cell_grid.h"
 #include "map/map_options.h"
 #include "map/map_types.h"
@@ -226,6 +227,10 @@ class Map {
   void set_point_position(PointId p, const Eigen::Vector3d& p_w);
   /// Sets a keyframe pose and its similarity scale (Sim3 corrections; stored, not applied).
   void set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale = 1.0);
+  /// Records a world-frame correction (a loop closure moved the map by S_new_old around the
+  /// newest keyframes): the cumulative correction becomes S_new_old * previous. Readers that
+  /// keep poses of their own (the tracker's last pose) move them by the part they missed.
+  void publish_correction(const geometry::Sim3d& S_new_old) noexcept;
   /// Sets the depth / confidence of one keypoint (depth refinement after publication).
   void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
   /// Frees a point: not live (generation incremented), removed from its cell, its keypoint
@@ -294,6 +299,10 @@ class Map {
   Generation keyframe_generation(KeyframeId kf) const noexcept;
   /// Generation of a live point, kNoGeneration otherwise.
   Generation point_generation(PointId p) const noexcept;
+  /// Corrections published so far (acquire; any thread).
+  std::uint32_t correction_count() const noexcept;
+  /// The cumulative correction and the count it includes; false after failed retries.
+  bool read_correction(geometry::Sim3d& S, std::uint32_t& count) const noexcept;
   /// Consistent pose (and scale); false for an unknown id or after failed retries.
   bool keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale = nullptr) const noexcept;
   /// Keypoints of kf (immutable while live; valid until the caller's next quiescent point;
@@ -357,12 +366,13 @@ class Map {
   static constexpr int kPoseTranslation = 9;  // 3 words
   static constexpr int kPoseScale = 12;
   static constexpr int kPoseWords = 13;
-  static constexpr int kPointPosition = 0;    // 3 words
-  static constexpr int kPointDescriptor = 3;  // 4 words
-  static constexpr int kPointNormalXY = 7;    // floats (normal x, normal y)
-  static constexpr int kPointNormalZMin = 8;  // floats (normal z, min distance)
-  static constexpr int kPointMax = 9;         // floats (max distance, unused)
-  static constexpr int kPointRef = 10;        // reference keyframe (low), keypoint (high)
+  static constexpr int kCorrectionWords = 14;  // rotation 9, translation 3, scale, count
+  static constexpr int kPointPosition = 0;     // 3 words
+  static constexpr int kPointDescriptor = 3;   // 4 words
+  static constexpr int kPointNormalXY = 7;     // floats (normal x, normal y)
+  static constexpr int kPointNormalZMin = 8;   // floats (normal z, min distance)
+  static constexpr int kPointMax = 9;          // floats (max distance, unused)
+  static constexpr int kPointRef = 10;         // reference keyframe (low), keypoint (high)
   static constexpr int kPointWords = 11;
 
   /// State word: generation << 1 | live.
@@ -490,7 +500,11 @@ class Map {
   RetireQueue kf_retired_;
   RetireQueue pt_retired_;
   std::uint64_t kf_serial_next_ = 0;
-  std::uint64_t epoch_own_ = 0;  // writer's copy of epoch_
+  SeqLock correction_lock_;
+  std::atomic<std::uint64_t> correction_[kCorrectionWords] = {};
+  std::atomic<std::uint32_t> correction_count_{0};
+  geometry::Sim3d correction_own_;  // writer side copy of the cumulative correction
+  std::uint64_t epoch_own_ = 0;     // writer's copy of epoch_
   std::uint64_t removed_keyframes_ = 0;
   std::uint64_t bad_points_ = 0;
   std::uint64_t merged_points_ = 0;

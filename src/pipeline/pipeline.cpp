@@ -135,6 +135,8 @@ Status Pipeline::init(const std::string& output_dir) {
       builder_->metric_map_depth());
   culler_ =
       std::make_unique<backend::MapCuller>(config_.culling, *map_, builder_->metric_map_depth());
+  loop_ = std::make_unique<backend::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
+                                                builder_->metric_map_depth(), ba_.get());
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;
@@ -259,6 +261,7 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.keyframes = stats_.map.live_keyframes;
   stats_.map_points = stats_.map.live_points;
   stats_.culling = culler_->totals();
+  stats_.loop = loop_->totals();
   stats_.tracker = tracker_->counters();
   stats_.focal = tracker_->focal();
   stats_.mapping = builder_->totals();
@@ -324,6 +327,7 @@ void Pipeline::create_keyframe(const map::KeyframeJob& job) {
   // still runs around the newest keyframe.
   optimize_and_cull(rep.ok ? rep.keyframe : map::kNoId, job.K, job.seq,
                     rep.ok ? rep.keyframe : map_->newest_keyframe());
+  if (rep.ok && map_->keyframe_is_live(rep.keyframe)) (void)loop_->spin_once(rep.keyframe, job.K);
 }
 
 void Pipeline::count_result(const frontend::TrackingResult& r) {
@@ -611,6 +615,9 @@ Status Pipeline::run_threaded() {
           const bool cull_live = map_->keyframe_generation(batch.cull.kf) == batch.cull.generation;
           optimize_and_cull(ba_live ? batch.ba.kf : map::kNoId, batch.ba.K, batch.ba.seq,
                             cull_live ? batch.cull.kf : map_->newest_keyframe());
+          if (ba_live && map_->keyframe_generation(batch.ba.kf) == batch.ba.generation) {
+            (void)loop_->spin_once(batch.ba.kf, batch.ba.K);
+          }
         });
   };
 

@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "backend/local_ba.h"
+#include "backend/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/status.h"
 #include "depth/depth_map_source.h"
@@ -73,6 +74,7 @@ struct PipelineConfig {
   backend::LocalBaOptions backend;
   hal::CameraIntrinsics intrinsics;  ///< calibration in use (source's, or the override)
   backend::CullingOptions culling;
+  backend::LoopOptions loop;
 };
 
 /// Latency of one stage, summarized.
@@ -140,6 +142,7 @@ struct PipelineStats {
   depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
   backend::CullingTotals culling;            ///< map culling totals
+  backend::LoopTotals loop;                  ///< loop closure totals
   map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
@@ -204,6 +207,7 @@ class Pipeline {
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   std::unique_ptr<backend::MapCuller> culler_;
+  std::unique_ptr<backend::LoopCloser> loop_;
   /// Lockstep keyframe creation: build_keyframe, then optimize_and_cull.
   void create_keyframe(const map::KeyframeJob& job);
   /// The keyframe builder (depth inference + insertion; latency `keyframe`).

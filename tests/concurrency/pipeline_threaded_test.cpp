@@ -169,5 +169,31 @@ TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
   ASSERT_EQ(s.threads.size(), 5U);
 }
 
+// Loop closure on the back-end thread while tracking reads the map: a whole orbit in RGB-D,
+// so the camera comes back to its start; the loop closer searches at every keyframe, and
+// when it closes the loop it moves keyframes and points under the writer lock and publishes
+// the correction the tracker follows at its next frame.
+TEST(PipelineThreaded, LoopClosureRunsBesideTracking) {
+  const RunResult r = run_threaded("mer_threaded_loop", 400, 20.0, 0, [](PipelineConfig& pc) {
+    pc.pipeline.mode = "rgbd";
+    pc.loop.min_keyframe_gap = 10;
+  });
+  const PipelineStats& s = r.stats;
+  std::printf(
+      "frames %llu processed, %llu dropped, %llu lost; keyframes %llu; loop: %llu "
+      "searches, %llu candidates, %llu closed\n",
+      static_cast<unsigned long long>(s.frames_processed),
+      static_cast<unsigned long long>(s.frames_dropped),
+      static_cast<unsigned long long>(s.frames_lost),
+      static_cast<unsigned long long>(s.mapping.keyframes),
+      static_cast<unsigned long long>(s.loop.keyframes_checked),
+      static_cast<unsigned long long>(s.loop.candidates_checked),
+      static_cast<unsigned long long>(s.loop.loops_closed));
+  EXPECT_EQ(s.frames_processed + s.frames_dropped, s.frames_in);
+  EXPECT_EQ(r.pool_available, r.pool_capacity);
+  EXPECT_GT(s.loop.keyframes_checked, 0U) << "the loop closer ran on the back-end thread";
+  EXPECT_LT(s.frames_lost, s.frames_processed) << "frames tracked";
+}
+
 }  // namespace
 }  // namespace mer::pipeline

@@ -141,6 +141,38 @@ TEST(MerSlamSynthetic, RgbdMergesTheDuplicatesOfARevisitedPlace) {
   EXPECT_LT(static_cast<double>(s["accuracy"]["ate_rmse_m"]), 0.01);
 }
 
+// Monocular loop closure: room_loop comes back to its start, the loop is found (descriptor
+// keys, Sim(3) check), the pose graph and loop fusion spread the drift, and the final map's
+// keyframes are better than with loop closure off (the drift stays in them there).
+TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
+  const auto on = fresh_dir("mer_e2e_loop_on");
+  const auto off = fresh_dir("mer_e2e_loop_off");
+  const auto cfg = std::filesystem::temp_directory_path() / "mer_e2e_loop_off.yaml";
+  {
+    std::FILE* f = std::fopen(cfg.string().c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("loop:\n  enabled: false\n", f);
+    std::fclose(f);
+  }
+  for (const auto& [d, extra] :
+       {std::pair{on, std::string()}, std::pair{off, " --config " + quote(cfg.string())}}) {
+    const auto r = run_command(quote(kExe) + " --lockstep --input synthetic:room_loop --quiet" +
+                               extra + " --output " + quote(d.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  cv::FileStorage s = open_summary(on);
+  cv::FileStorage so = open_summary(off);
+  ASSERT_TRUE(s.isOpened());
+  ASSERT_TRUE(so.isOpened());
+  EXPECT_GE(static_cast<int>(s["loop"]["loops_closed"]), 1);
+  EXPECT_EQ(static_cast<int>(so["loop"]["loops_closed"]), 0);
+  EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 100.0);
+  const double kf_on = static_cast<double>(s["accuracy_keyframes"]["ate_pct_of_path"]);
+  const double kf_off = static_cast<double>(so["accuracy_keyframes"]["ate_pct_of_path"]);
+  EXPECT_LT(kf_on, 0.15) << "final-map keyframes, % of the path (0.100 measured)";
+  EXPECT_LT(kf_on, 0.7 * kf_off) << "loop closure off: " << kf_off << " % (0.190 measured)";
+}
+
 // Culling keeps the map bounded: room_loop with 20 keyframe and 4000 point slots. Without
 // culling the map is full after ~13 s and tracking is lost for most of the rest; with it,
 // keyframes and points are removed, their slots reused, and every frame stays tracked.

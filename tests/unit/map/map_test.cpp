@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <mutex>
 #include <random>
 #include <vector>
 
@@ -831,6 +832,44 @@ TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
       static_cast<double>(total) / static_cast<double>(visible));
   EXPECT_LT(median, 1000.0);  // generous: the target is well under 1 ms on a loaded machine
   EXPECT_LT(static_cast<double>(total) / static_cast<double>(visible), 1.6);
+}
+
+}  // namespace
+}  // namespace mer::map
+
+namespace mer::map {
+namespace {
+
+// Loop corrections compose in the map: a reader that saw the first one and reads the
+// cumulative correction after the second gets S2 * S1, with the count of both.
+TEST(Map, CorrectionsComposeAndAreCounted) {
+  Map map(small_options());
+  geometry::Sim3d S;
+  std::uint32_t count = 7;
+  ASSERT_TRUE(map.read_correction(S, count));
+  EXPECT_EQ(count, 0U);
+  EXPECT_EQ(map.correction_count(), 0U);
+  EXPECT_DOUBLE_EQ(S.s, 1.0);
+  geometry::Sim3d a;
+  a.R = Eigen::AngleAxisd(0.2, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  a.t = Eigen::Vector3d(0.1, -0.2, 0.3);
+  a.s = 1.05;
+  geometry::Sim3d b;
+  b.R = Eigen::AngleAxisd(-0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
+  b.t = Eigen::Vector3d(-0.3, 0.0, 0.2);
+  b.s = 0.97;
+  {
+    std::lock_guard<platform::PiMutex> lock(map.writer_lock());
+    map.publish_correction(a);
+    map.publish_correction(b);
+  }
+  ASSERT_TRUE(map.read_correction(S, count));
+  EXPECT_EQ(count, 2U);
+  EXPECT_EQ(map.correction_count(), 2U);
+  const geometry::Sim3d ba = b * a;
+  const Eigen::Vector3d p(1.0, 2.0, 3.0);
+  EXPECT_LT((S * p - ba * p).norm(), 1e-12);
+  EXPECT_NEAR(S.s, 1.05 * 0.97, 1e-12);
 }
 
 }  // namespace

@@ -1,0 +1,760 @@
+#include "backend/loop_closer.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <mutex>
+#include <utility>
+
+#include <ceres/ceres.h>
+
+#include "backend/local_ba.h"
+#include "geometry/random.h"
+#include "platform/log_ring.h"
+
+namespace mer::backend {
+
+namespace {
+
+using geometry::Sim3d;
+
+/// Keyframes of the candidate's neighbourhood tied to the corrected one by loop edges.
+constexpr std::size_t kLoopNeighbours = 6;
+/// Covisible keyframes read per keyframe (map.max_covisible_per_keyframe bounds it anyway).
+constexpr std::size_t kMaxCovisible = 64;
+/// Loop edges remembered for the pose graphs of later loops.
+constexpr std::size_t kMaxLoopEdges = 4096;
+/// A Sim(3) fit's scale outside [1/k, k] is not drift, it is a wrong match.
+constexpr double kMaxLoopScale = 2.0;
+
+double elapsed_ms(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+/// Relative similarity error of a pose-graph edge (i, j): parameters are S_w_i and S_w_j as
+/// (unit quaternion x y z w, translation, log scale); the measurement is S_i_j. The residual
+/// is (2 vec(q_e), t_e, log s_e) of E = S_i_j_meas^-1 * S_w_i^-1 * S_w_j (identity when the
+/// edge holds), with unit information, as in the usual essential-graph formulation.
+struct Sim3EdgeCost {
+  explicit Sim3EdgeCost(const Sim3d& S_i_j) {
+    const Sim3d inv = S_i_j.inverse();
+    q_inv = Eigen::Quaterniond(inv.R);
+    t_inv = inv.t;
+    log_s_inv = std::log(inv.s);
+  }
+  template <class T>
+  bool operator()(const T* qi, const T* ti, const T* li, const T* qj, const T* tj, const T* lj,
+                  T* res) const {
+    const Eigen::Map<const Eigen::Quaternion<T>> Qi(qi);
+    const Eigen::Map<const Eigen::Quaternion<T>> Qj(qj);
+    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> Ti(ti);
+    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> Tj(tj);
+    // P = S_w_i^-1 * S_w_j.
+    const Eigen::Quaternion<T> qi_inv = Qi.conjugate();
+    const Eigen::Quaternion<T> q_p = qi_inv * Qj;
+    const Eigen::Matrix<T, 3, 1> t_p = (qi_inv * (Tj - Ti)) * exp(-li[0]);
+    const T log_s_p = lj[0] - li[0];
+    // E = M^-1 * P.
+    const Eigen::Quaternion<T> q_m = q_inv.cast<T>();
+    Eigen::Quaternion<T> q_e = q_m * q_p;
+    const Eigen::Matrix<T, 3, 1> t_e = (q_m * t_p) * T(std::exp(log_s_inv)) + t_inv.cast<T>();
+    if (q_e.w() < T(0)) q_e.coeffs() = -q_e.coeffs();
+    res[0] = T(2) * q_e.x();
+    res[1] = T(2) * q_e.y();
+    res[2] = T(2) * q_e.z();
+    res[3] = t_e.x();
+    res[4] = t_e.y();
+    res[5] = t_e.z();
+    res[6] = log_s_p + T(log_s_inv);
+    return true;
+  }
+  Eigen::Quaterniond q_inv;
+  Eigen::Vector3d t_inv;
+  double log_s_inv = 0.0;
+};
+
+struct GraphNode {
+  map::KeyframeId id = map::kNoId;
+  std::uint64_t serial = 0;
+  Sim3d sim_old;              // S_w_k before the correction
+  std::array<double, 4> q{};  // x y z w of S_w_k
+  std::array<double, 3> t{};
+  double log_s = 0.0;
+  Sim3d value() const {
+    Sim3d S;
+    S.R = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized().toRotationMatrix();
+    S.t = {t[0], t[1], t[2]};
+    S.s = std::exp(log_s);
+    return S;
+  }
+  void set(const Sim3d& S) {
+    const Eigen::Quaterniond qq(S.R);
+    q = {qq.x(), qq.y(), qq.z(), qq.w()};
+    t = {S.t.x(), S.t.y(), S.t.z()};
+    log_s = std::log(S.s);
+  }
+};
+
+}  // namespace
+
+std::array<std::uint16_t, kKeyTables> descriptor_keys(const features::Descriptor& d) {
+  // Table t takes bits t, t + 4, t + 8, ... of a 64-bit word, a different word per table
+  // group: spread over the descriptor, no bit used twice.
+  std::array<std::uint16_t, kKeyTables> out{};
+  for (int t = 0; t < kKeyTables; ++t) {
+    const std::uint64_t w = d[static_cast<std::size_t>(t) % d.size()];
+    std::uint16_t k = 0;
+    for (int i = 0; i < kKeyBits; ++i) {
+      k = static_cast<std::uint16_t>((k << 1U) | ((w >> static_cast<unsigned>(i * 4 + t)) & 1U));
+    }
+    out[static_cast<std::size_t>(t)] = k;
+  }
+  return out;
+}
+
+LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2,
+                       bool metric, LocalBundleAdjuster* ba)
+    : opts_(opts),
+      map_(map),
+      level_sigma2_(std::move(level_sigma2)),
+      metric_(metric),
+      ba_(ba),
+      keys_(static_cast<std::size_t>(map.options().max_keyframes)),
+      key_frequency_(static_cast<std::size_t>(kKeyTables) << static_cast<unsigned>(kKeyBits), 0U),
+      rng_(static_cast<std::uint32_t>(opts.seed)) {
+  const auto nk = static_cast<std::size_t>(map.options().max_keypoints_per_keyframe);
+  matches_.reserve(nk);
+  loop_edges_.reserve(kMaxLoopEdges);
+  inlier_.reserve(nk);
+  x_new_.reserve(nk);
+  x_old_.reserve(nk);
+}
+
+const LoopCloser::KeyframeKeys& LoopCloser::keys_of(map::KeyframeId kf) {
+  KeyframeKeys& k = keys_[kf];
+  const map::Generation gen = map_.keyframe_generation(kf);
+  if (k.generation == gen) return k;
+  auto count = [&](int delta) {
+    for (std::size_t t = 0; t < k.keys.size(); ++t) {
+      for (const std::uint16_t key : k.keys[t]) {
+        key_frequency_[(t << static_cast<unsigned>(kKeyBits)) | key] +=
+            static_cast<std::uint32_t>(delta);
+      }
+    }
+  };
+  if (k.generation != map::kNoGeneration) {
+    count(-1);  // the slot's former occupant
+    --keyed_keyframes_;
+  }
+  k.generation = gen;
+  const auto descs = map_.keyframe_descriptors(kf);
+  const std::uint32_t n = map_.keyframe_num_keypoints(kf);
+  for (auto& table : k.keys) table.clear();
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const auto keys = descriptor_keys(descs[i]);
+    for (std::size_t t = 0; t < keys.size(); ++t) k.keys[t].push_back(keys[t]);
+  }
+  for (auto& table : k.keys) {
+    std::sort(table.begin(), table.end());
+    table.erase(std::unique(table.begin(), table.end()), table.end());
+  }
+  count(+1);
+  ++keyed_keyframes_;
+  return k;
+}
+
+double LoopCloser::shared_keys(const KeyframeKeys& a, const KeyframeKeys& b) const {
+  double shared = 0.0;
+  const double n = std::max(1.0, static_cast<double>(keyed_keyframes_));
+  for (std::size_t t = 0; t < a.keys.size(); ++t) {
+    const auto& x = a.keys[t];
+    const auto& y = b.keys[t];
+    std::size_t i = 0;
+    std::size_t j = 0;
+    while (i < x.size() && j < y.size()) {
+      if (x[i] < y[j]) {
+        ++i;
+      } else if (y[j] < x[i]) {
+        ++j;
+      } else {
+        const std::uint32_t f = key_frequency_[(t << static_cast<unsigned>(kKeyBits)) | x[i]];
+        shared += std::log(n / std::max(1.0, static_cast<double>(f)));
+        ++i;
+        ++j;
+      }
+    }
+  }
+  return shared;
+}
+
+float LoopCloser::sigma2(const features::Keypoint& k) const {
+  if (level_sigma2_.empty()) return 1.0F;
+  const auto l = static_cast<std::size_t>(
+      std::clamp<int>(k.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
+  return level_sigma2_[l];
+}
+
+LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
+  LoopReport rep;
+  if (!opts_.enabled || kf == map::kNoId) return rep;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
+  if (!map_.keyframe_is_live(kf) || kf >= keys_.size()) return rep;
+  const std::uint64_t serial = map_.keyframe_serial(kf);
+  if (any_loop_ &&
+      serial < last_loop_serial_ + static_cast<std::uint64_t>(opts_.cooldown_keyframes)) {
+    return rep;
+  }
+  ++totals_.keyframes_checked;
+
+  // 1. Retrieval. Old keyframes the new one already shares points with (tracking found
+  // their points again) come first, by shared points; then those whose key score passes the
+  // bar, by score.
+  struct Candidate {
+    bool covisible = false;
+    double score = 0.0;
+    map::KeyframeId id = map::kNoId;
+  };
+  std::vector<Candidate> ranked;
+  std::vector<Candidate> scored;
+  const KeyframeKeys& mine = keys_of(kf);
+  const map::KeyframeId n = map_.num_keyframes();
+  for (map::KeyframeId id = 0; id < n && id < keys_.size(); ++id) {
+    if (map_.keyframe_is_live(id)) (void)keys_of(id);  // key frequencies first
+  }
+  for (map::KeyframeId id = 0; id < n && id < keys_.size(); ++id) {
+    if (id == kf || !map_.keyframe_is_live(id) ||
+        map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial) {
+      continue;
+    }
+    if (const std::uint32_t w = map_.covisibility_weight(kf, id); w > 0) {
+      ranked.push_back(Candidate{true, static_cast<double>(w), id});
+    } else {
+      scored.push_back(Candidate{false, shared_keys(mine, keys_of(id)), id});
+    }
+  }
+  double bar = 0.0;
+  if (!scored.empty()) {
+    std::vector<double> v;
+    v.reserve(scored.size());
+    for (const Candidate& c : scored) v.push_back(c.score);
+    const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(v.begin(), mid, v.end());
+    bar = opts_.min_key_score_ratio * *mid;
+    for (const Candidate& c : scored) {
+      if (c.score >= bar) ranked.push_back(c);
+    }
+  }
+  std::sort(ranked.begin(), ranked.end(), [](const Candidate& a, const Candidate& b) {
+    if (a.covisible != b.covisible) return a.covisible;
+    if (a.score != b.score) return a.score > b.score;
+    return a.id < b.id;
+  });
+  MER_LOG_DEBUG("loop: keyframe of frame %llu: %zu candidates (key score bar %.1f)",
+                static_cast<unsigned long long>(map_.keyframe_seq(kf)), ranked.size(), bar);
+  if (ranked.size() > static_cast<std::size_t>(opts_.max_candidates)) {
+    ranked.resize(static_cast<std::size_t>(opts_.max_candidates));
+  }
+
+  // 2. Geometric check.
+  for (const Candidate& c : ranked) {
+    const map::KeyframeId cand = c.id;
+    ++rep.candidates;
+    ++totals_.candidates_checked;
+    const int m = match_points(kf, cand);
+    MER_LOG_DEBUG("loop: keyframe %llu vs %llu: %s %.1f, %d point matches",
+                  static_cast<unsigned long long>(map_.keyframe_seq(kf)),
+                  static_cast<unsigned long long>(map_.keyframe_seq(cand)),
+                  c.covisible ? "shared points" : "key score", c.score, m);
+    if (m < opts_.min_matches) continue;
+    Sim3d S_cand_new;
+    const int inliers = ransac_sim3(kf, cand, K, S_cand_new);
+    MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
+    if (inliers < opts_.min_inliers) continue;
+    rep.matches = m;
+    rep.inliers = inliers;
+    rep.loop_keyframe = cand;
+    rep.loop_seq = map_.keyframe_seq(cand);
+    rep.merged_points = correct(kf, cand, S_cand_new, K, rep);
+    rep.closed = true;
+    break;
+  }
+  rep.ms = elapsed_ms(t0);
+  lock.unlock();
+  if (rep.closed) {
+    any_loop_ = true;
+    last_loop_serial_ = serial;
+    MER_LOG_INFO(
+        "loop closed: keyframe of frame %llu onto frame %llu, %d of %d matches, scale %.4f, "
+        "shift %.3f, %d keyframes, %d points merged, %d observations fused, %.1f ms",
+        static_cast<unsigned long long>(map_.keyframe_seq(kf)),
+        static_cast<unsigned long long>(rep.loop_seq), rep.inliers, rep.matches, rep.scale,
+        rep.shift, rep.keyframes, rep.merged_points, rep.fused_observations, rep.ms);
+    if (ba_ != nullptr && opts_.full_ba_iterations > 0) {
+      const auto t1 = std::chrono::steady_clock::now();
+      (void)ba_->optimize_full(K, opts_.full_ba_iterations);
+      rep.full_ba_ms = elapsed_ms(t1);
+    }
+    ++totals_.loops_closed;
+    totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
+    totals_.last_loop = rep;
+    totals_.max_full_ba_ms = std::max(totals_.max_full_ba_ms, rep.full_ba_ms);
+  }
+  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
+  return rep;
+}
+
+int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
+  matches_.clear();
+  old_views_.clear();
+  const std::uint64_t serial = map_.keyframe_serial(kf);
+  const auto gap = static_cast<std::uint64_t>(opts_.min_keyframe_gap);
+  // The old side: the candidate and its old covisible neighbours; each point once.
+  SE3d T_w_cand;
+  if (!map_.keyframe_pose(cand, T_w_cand)) return 0;
+  old_views_.push_back(OldView{cand, SE3d::Identity()});
+  std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
+  const std::size_t nc = map_.covisible_keyframes(cand, covis);
+  for (std::size_t k = 0; k < nc && old_views_.size() < kLoopNeighbours; ++k) {
+    SE3d T_w_v;
+    if (map_.keyframe_serial(covis[k].id) + gap > serial ||
+        !map_.keyframe_pose(covis[k].id, T_w_v)) {
+      continue;
+    }
+    old_views_.push_back(OldView{covis[k].id, T_w_v.inverse() * T_w_cand});
+  }
+  struct OldPoint {
+    std::uint32_t view = 0;
+    std::uint32_t kp = 0;
+    map::PointId p = map::kNoId;
+  };
+  std::vector<OldPoint> old_pts;
+  for (std::uint32_t v = 0; v < old_views_.size(); ++v) {
+    const map::KeyframeId id = old_views_[v].kf;
+    const std::uint32_t n_old = map_.keyframe_num_keypoints(id);
+    for (std::uint32_t j = 0; j < n_old; ++j) {
+      const map::PointId q = map_.keyframe_point(id, j);
+      if (q == map::kNoId || map_.point_is_bad(q)) continue;
+      if (std::any_of(old_pts.begin(), old_pts.end(),
+                      [&](const OldPoint& o) { return o.p == q; })) {
+        continue;
+      }
+      old_pts.push_back(OldPoint{v, j, q});
+    }
+  }
+  const auto descs_new = map_.keyframe_descriptors(kf);
+  const std::uint32_t n_new = map_.keyframe_num_keypoints(kf);
+  // Best new keypoint per old point (one-to-one): distance, index in matches_.
+  std::vector<std::pair<int, int>> taken(old_pts.size(), {std::numeric_limits<int>::max(), -1});
+  for (std::uint32_t i = 0; i < n_new; ++i) {
+    const map::PointId p = map_.keyframe_point(kf, i);
+    if (p == map::kNoId || map_.point_is_bad(p)) continue;
+    int best = std::numeric_limits<int>::max();
+    int second = std::numeric_limits<int>::max();
+    std::size_t best_k = 0;
+    for (std::size_t k = 0; k < old_pts.size(); ++k) {
+      const auto descs_old = map_.keyframe_descriptors(old_views_[old_pts[k].view].kf);
+      const int d = features::hamming(descs_new[i], descs_old[old_pts[k].kp]);
+      if (d < best) {
+        second = best;
+        best = d;
+        best_k = k;
+      } else if (d < second) {
+        second = d;
+      }
+    }
+    if (best > opts_.max_descriptor_distance ||
+        static_cast<double>(best) > opts_.ratio * static_cast<double>(second)) {
+      continue;
+    }
+    if (old_pts[best_k].p == p) continue;  // already one point: nothing to close
+    auto& [dist, idx] = taken[best_k];
+    if (best >= dist) continue;
+    if (idx >= 0) {
+      matches_[static_cast<std::size_t>(idx)].p_new = map::kNoId;  // displaced
+    } else {
+      idx = static_cast<int>(matches_.size());
+      matches_.emplace_back();
+    }
+    dist = best;
+    matches_[static_cast<std::size_t>(idx)] =
+        Match{i, old_pts[best_k].kp, p, old_pts[best_k].p, old_pts[best_k].view};
+  }
+  std::erase_if(matches_, [](const Match& m) { return m.p_new == map::kNoId; });
+  return static_cast<int>(matches_.size());
+}
+
+int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
+                            Sim3d& S_cand_new) {
+  SE3d T_w_new;
+  SE3d T_w_old;
+  if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_old)) return 0;
+  const SE3d T_new_w = T_w_new.inverse();
+  const SE3d T_old_w = T_w_old.inverse();
+  const auto kps_new = map_.keyframe_keypoints(kf);
+  x_new_.clear();
+  x_old_.clear();
+  std::erase_if(matches_, [&](const Match& m) {
+    map::PointView a;
+    map::PointView b;
+    if (!map_.read_point(m.p_new, a) || !map_.read_point(m.p_old, b)) return true;
+    const Eigen::Vector3d xa = T_new_w * a.p_w;
+    const Eigen::Vector3d xb = T_old_w * b.p_w;
+    if (xa.z() <= 0.0 || xb.z() <= 0.0) return true;
+    x_new_.push_back(xa);
+    x_old_.push_back(xb);
+    return false;
+  });
+  const std::size_t n = matches_.size();
+  if (n < 3) return 0;
+  auto count_inliers = [&](const Sim3d& S, std::vector<std::uint8_t>* mask) {
+    const Sim3d S_inv = S.inverse();
+    int count = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector3d a = S * x_new_[i];      // in the old camera
+      const Eigen::Vector3d b = S_inv * x_old_[i];  // in the new camera
+      bool ok = a.z() > 0.0 && b.z() > 0.0;
+      if (ok) {
+        const OldView& view = old_views_[matches_[i].old_view];
+        const features::Keypoint& ko = map_.keyframe_keypoints(view.kf)[matches_[i].kp_old];
+        const features::Keypoint& kn = kps_new[matches_[i].kp_new];
+        const Eigen::Vector3d av = view.T_view_cand * a;
+        const double eo =
+            av.z() <= 0.0
+                ? std::numeric_limits<double>::infinity()
+                : (K.project(av) - Eigen::Vector2d(ko.x, ko.y)).squaredNorm() / sigma2(ko);
+        const double en = (K.project(b) - Eigen::Vector2d(kn.x, kn.y)).squaredNorm() / sigma2(kn);
+        ok = eo < opts_.inlier_chi2 && en < opts_.inlier_chi2;
+      }
+      if (mask != nullptr) (*mask)[i] = ok ? 1 : 0;
+      count += ok ? 1 : 0;
+    }
+    return count;
+  };
+  auto fit = [&](const std::vector<std::size_t>& idx) {
+    Eigen::Matrix3Xd src(3, static_cast<Eigen::Index>(idx.size()));
+    Eigen::Matrix3Xd dst(3, static_cast<Eigen::Index>(idx.size()));
+    for (std::size_t k = 0; k < idx.size(); ++k) {
+      src.col(static_cast<Eigen::Index>(k)) = x_new_[idx[k]];
+      dst.col(static_cast<Eigen::Index>(k)) = x_old_[idx[k]];
+    }
+    return geometry::umeyama_sim3(src, dst, !metric_);
+  };
+  auto plausible = [&](const Sim3d& S) {
+    return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
+           S.R.allFinite() && S.t.allFinite();
+  };
+  geometry::Rng rng(rng_);
+  int best = 0;
+  Sim3d best_sim;
+  std::vector<std::size_t> sample(3);
+  for (int it = 0; it < opts_.ransac_iterations; ++it) {
+    sample[0] = rng.uniform_index(static_cast<std::uint32_t>(n));
+    sample[1] = rng.uniform_index(static_cast<std::uint32_t>(n));
+    sample[2] = rng.uniform_index(static_cast<std::uint32_t>(n));
+    if (sample[0] == sample[1] || sample[0] == sample[2] || sample[1] == sample[2]) continue;
+    const Sim3d S = fit(sample);
+    if (!plausible(S)) continue;
+    const int c = count_inliers(S, nullptr);
+    if (c > best) {
+      best = c;
+      best_sim = S;
+    }
+  }
+  ++rng_;
+  if (best < 3) return 0;
+  // Refit on the inliers until the set settles.
+  inlier_.assign(n, 0);
+  best = count_inliers(best_sim, &inlier_);
+  for (int round = 0; round < 3; ++round) {
+    std::vector<std::size_t> idx;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (inlier_[i]) idx.push_back(i);
+    }
+    const Sim3d S = fit(idx);
+    if (!plausible(S)) break;
+    std::vector<std::uint8_t> mask(n, 0);
+    const int c = count_inliers(S, &mask);
+    if (c < best) break;
+    best = c;
+    best_sim = S;
+    const bool same = mask == inlier_;
+    inlier_.swap(mask);
+    if (same) break;
+  }
+  S_cand_new = best_sim;
+  return best;
+}
+
+int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
+                        const geometry::Pinhole& K, LoopReport& rep) {
+  // Nodes: every live keyframe, in creation order.
+  std::vector<GraphNode> nodes;
+  std::vector<int> node_of(map_.num_keyframes(), -1);
+  for (map::KeyframeId id = 0; id < map_.num_keyframes(); ++id) {
+    SE3d T;
+    if (!map_.keyframe_is_live(id) || !map_.keyframe_pose(id, T)) continue;
+    GraphNode g;
+    g.id = id;
+    g.serial = map_.keyframe_serial(id);
+    g.sim_old = Sim3d::from_se3(T);
+    g.set(g.sim_old);
+    nodes.push_back(g);
+  }
+  std::sort(nodes.begin(), nodes.end(),
+            [](const GraphNode& a, const GraphNode& b) { return a.serial < b.serial; });
+  for (std::size_t i = 0; i < nodes.size(); ++i) node_of[nodes[i].id] = static_cast<int>(i);
+  const int i_new = node_of[kf];
+  const int i_cand = node_of[cand];
+  if (i_new < 0 || i_cand < 0) return 0;
+
+  // The correction at the new keyframe, and its neighbourhood moved rigidly with it.
+  const Sim3d S_w_new_corr = nodes[static_cast<std::size_t>(i_cand)].sim_old * S_cand_new;
+  const Sim3d C = S_w_new_corr * nodes[static_cast<std::size_t>(i_new)].sim_old.inverse();
+  std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
+  const std::size_t nc = map_.covisible_keyframes(kf, covis);
+
+  // The window: the new keyframe and its recent neighbours (not the old ones it already
+  // shares points with: those are the other side of the loop).
+  const auto gap = static_cast<std::uint64_t>(opts_.min_keyframe_gap);
+  auto recent = [&](int i) {
+    return nodes[static_cast<std::size_t>(i)].serial + gap >
+           nodes[static_cast<std::size_t>(i_new)].serial;
+  };
+  auto long_gap = [&](int i, int j) {
+    const std::uint64_t a = nodes[static_cast<std::size_t>(i)].serial;
+    const std::uint64_t b = nodes[static_cast<std::size_t>(j)].serial;
+    return (a > b ? a - b : b - a) >= gap;
+  };
+  std::vector<int> window{i_new};
+  for (std::size_t k = 0; k < nc; ++k) {
+    const int i = node_of[covis[k].id];
+    if (i >= 0 && i != i_cand && recent(i)) window.push_back(i);
+  }
+  std::vector<Sim3d> S_init(nodes.size());
+  for (std::size_t i = 0; i < nodes.size(); ++i) S_init[i] = nodes[i].sim_old;
+  for (const int i : window)
+    S_init[static_cast<std::size_t>(i)] = C * nodes[static_cast<std::size_t>(i)].sim_old;
+  for (std::size_t i = 0; i < nodes.size(); ++i) nodes[i].set(S_init[i]);
+
+  // Edges.
+  ceres::Problem::Options popts;
+  ceres::Problem problem(popts);
+  ceres::Manifold* quat = new ceres::EigenQuaternionManifold;  // owned by the problem
+  bool quat_used = false;
+  auto add_edge = [&](int i, int j, const Sim3d& S_i_j) {
+    auto* cost =
+        new ceres::AutoDiffCostFunction<Sim3EdgeCost, 7, 4, 3, 1, 4, 3, 1>(new Sim3EdgeCost(S_i_j));
+    GraphNode& a = nodes[static_cast<std::size_t>(i)];
+    GraphNode& b = nodes[static_cast<std::size_t>(j)];
+    problem.AddResidualBlock(cost, nullptr, a.q.data(), a.t.data(), &a.log_s, b.q.data(),
+                             b.t.data(), &b.log_s);
+  };
+  auto old_relative = [&](int i, int j) {
+    return nodes[static_cast<std::size_t>(i)].sim_old.inverse() *
+           nodes[static_cast<std::size_t>(j)].sim_old;
+  };
+  int edges = 0;
+  for (std::size_t i = 0; i < nodes.size(); ++i) {
+    if (i > 0) {
+      add_edge(static_cast<int>(i - 1), static_cast<int>(i),
+               old_relative(static_cast<int>(i - 1), static_cast<int>(i)));
+      ++edges;
+    }
+    const std::size_t m = map_.covisible_keyframes(nodes[i].id, covis);
+    for (std::size_t k = 0; k < m; ++k) {
+      const int j = node_of[covis[k].id];
+      // Each pair once (the older first), consecutive pairs already have their edge.
+      // Pairs far apart in time are loop edges: the ones of earlier loops are added below,
+      // others hold the drift this loop removes.
+      if (j < 0 || static_cast<std::size_t>(j) >= i || static_cast<std::size_t>(j) + 1 == i ||
+          covis[k].weight < static_cast<std::uint32_t>(opts_.min_edge_weight) ||
+          long_gap(j, static_cast<int>(i))) {
+        continue;
+      }
+      add_edge(j, static_cast<int>(i), old_relative(j, static_cast<int>(i)));
+      ++edges;
+    }
+  }
+  // Loop edges: the corrected neighbourhood of the new keyframe to the candidate's.
+  std::vector<int> loop_side{i_cand};
+  const std::size_t ncc = map_.covisible_keyframes(cand, covis);
+  for (std::size_t k = 0; k < ncc && loop_side.size() < kLoopNeighbours; ++k) {
+    const int j = node_of[covis[k].id];
+    if (j >= 0 && std::find(window.begin(), window.end(), j) == window.end())
+      loop_side.push_back(j);
+  }
+  // Edges of the loops closed before (consistent since their correction).
+  for (const LoopEdge& e : loop_edges_) {
+    if (e.a >= node_of.size() || e.b >= node_of.size() ||
+        map_.keyframe_generation(e.a) != e.gen_a || map_.keyframe_generation(e.b) != e.gen_b) {
+      continue;
+    }
+    const int i = node_of[e.a];
+    const int j = node_of[e.b];
+    if (i < 0 || j < 0) continue;
+    add_edge(i, j, old_relative(i, j));
+    ++edges;
+  }
+  for (const int w : window) {
+    for (const int l : loop_side) {
+      add_edge(l, w,
+               S_init[static_cast<std::size_t>(l)].inverse() * S_init[static_cast<std::size_t>(w)]);
+      ++edges;
+      const map::KeyframeId a = nodes[static_cast<std::size_t>(l)].id;
+      const map::KeyframeId b = nodes[static_cast<std::size_t>(w)].id;
+      if (loop_edges_.size() < loop_edges_.capacity()) {
+        loop_edges_.push_back(
+            LoopEdge{a, map_.keyframe_generation(a), b, map_.keyframe_generation(b)});
+      }
+    }
+  }
+  for (GraphNode& g : nodes) {
+    if (problem.HasParameterBlock(g.q.data())) {
+      problem.SetManifold(g.q.data(), quat);
+      quat_used = true;
+      if (metric_) problem.SetParameterBlockConstant(&g.log_s);
+    }
+  }
+  GraphNode& anchor = nodes[static_cast<std::size_t>(i_cand)];
+  problem.SetParameterBlockConstant(anchor.q.data());
+  problem.SetParameterBlockConstant(anchor.t.data());
+  problem.SetParameterBlockConstant(&anchor.log_s);
+  if (!quat_used) delete quat;
+
+  ceres::Solver::Options sopts;
+  sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  // Eigen's sparse Cholesky: SuiteSparse's runs OpenMP regions on this real-time thread.
+  if (ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::EIGEN_SPARSE)) {
+    sopts.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  }
+  sopts.max_num_iterations = opts_.pose_graph_iterations;
+  sopts.num_threads = 1;
+  sopts.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(sopts, &problem, &summary);
+  MER_LOG_DEBUG("loop pose graph: %zu keyframes, %d edges, cost %.3g -> %.3g, %d iterations",
+                nodes.size(), edges, summary.initial_cost, summary.final_cost,
+                static_cast<int>(summary.iterations.size()));
+
+  // Apply: keyframe poses and depths, then every point with its reference keyframe.
+  std::vector<Sim3d> D(nodes.size());
+  for (std::size_t i = 0; i < nodes.size(); ++i) {
+    const Sim3d S_new = nodes[i].value();
+    D[i] = S_new * nodes[i].sim_old.inverse();
+    double kf_scale = 1.0;
+    SE3d T_unused;
+    (void)map_.keyframe_pose(nodes[i].id, T_unused, &kf_scale);
+    map_.set_keyframe_pose(nodes[i].id, S_new.rigid(), kf_scale);
+    if (!metric_) {
+      const std::uint32_t nk = map_.keyframe_num_keypoints(nodes[i].id);
+      for (std::uint32_t kp = 0; kp < nk; ++kp) {
+        const float d = map_.keyframe_depth(nodes[i].id, kp);
+        if (d > 0.0F) {
+          map_.set_keyframe_depth(nodes[i].id, kp, static_cast<float>(d * S_new.s),
+                                  map_.keyframe_depth_confidence(nodes[i].id, kp));
+        }
+      }
+    }
+  }
+  const map::PointId np = map_.num_points();
+  map::PointView v;
+  for (map::PointId p = 0; p < np; ++p) {
+    if (!map_.read_point(p, v) || v.ref_keyframe >= node_of.size()) continue;
+    const int r = node_of[v.ref_keyframe];
+    if (r < 0) continue;
+    map_.set_point_position(p, D[static_cast<std::size_t>(r)] * v.p_w);
+  }
+  // Merge the matched points (the loop keyframe's is kept: the old map is the reference).
+  int merged = 0;
+  for (std::size_t i = 0; i < matches_.size(); ++i) {
+    if (!inlier_[i]) continue;
+    if (map_.merge_points(matches_[i].p_old, matches_[i].p_new) >= 0) ++merged;
+  }
+  // Loop fusion: the old side's points projected into the corrected window keyframes.
+  std::vector<map::KeyframeId> window_ids;
+  std::vector<map::KeyframeId> old_ids;
+  for (const int w : window) window_ids.push_back(nodes[static_cast<std::size_t>(w)].id);
+  for (const int l : loop_side) old_ids.push_back(nodes[static_cast<std::size_t>(l)].id);
+  merged += fuse_loop(window_ids, old_ids, K, rep);
+  for (const int w : window) map_.update_covisibility(nodes[static_cast<std::size_t>(w)].id);
+  map_.update_covisibility(cand);
+  const Sim3d& D_new = D[static_cast<std::size_t>(i_new)];
+  map_.publish_correction(D_new);
+  rep.scale = D_new.s;
+  rep.shift = (nodes[static_cast<std::size_t>(i_new)].value().t -
+               nodes[static_cast<std::size_t>(i_new)].sim_old.t)
+                  .norm();
+  rep.keyframes = static_cast<int>(nodes.size());
+  return merged;
+}
+
+int LoopCloser::fuse_loop(const std::vector<map::KeyframeId>& window,
+                          const std::vector<map::KeyframeId>& old_kfs, const geometry::Pinhole& K,
+                          LoopReport& rep) {
+  std::vector<map::PointId> old_pts;
+  for (const map::KeyframeId id : old_kfs) {
+    const std::uint32_t nk = map_.keyframe_num_keypoints(id);
+    for (std::uint32_t j = 0; j < nk; ++j) {
+      const map::PointId q = map_.keyframe_point(id, j);
+      if (q != map::kNoId && !map_.point_is_bad(q)) old_pts.push_back(q);
+    }
+  }
+  std::sort(old_pts.begin(), old_pts.end());
+  old_pts.erase(std::unique(old_pts.begin(), old_pts.end()), old_pts.end());
+  int merged = 0;
+  std::vector<int> best_dist;
+  std::vector<map::PointId> best_pt;
+  for (const map::KeyframeId w : window) {
+    SE3d T_w_c;
+    if (!map_.keyframe_is_live(w) || !map_.keyframe_pose(w, T_w_c)) continue;
+    const SE3d T_c_w = T_w_c.inverse();
+    const auto kps = map_.keyframe_keypoints(w);
+    const auto descs = map_.keyframe_descriptors(w);
+    const std::uint32_t nk = map_.keyframe_num_keypoints(w);
+    best_dist.assign(nk, std::numeric_limits<int>::max());
+    best_pt.assign(nk, map::kNoId);
+    map::PointView pv;
+    for (const map::PointId q : old_pts) {
+      if (!map_.read_point(q, pv)) continue;
+      const Eigen::Vector3d p_c = T_c_w * pv.p_w;
+      if (p_c.z() <= 0.0) continue;
+      const Eigen::Vector2d uv = K.project(p_c);
+      int best = std::numeric_limits<int>::max();
+      std::uint32_t best_k = nk;
+      for (std::uint32_t k = 0; k < nk; ++k) {
+        const features::Keypoint& kp = kps[k];
+        const double e2 = (Eigen::Vector2d(kp.x, kp.y) - uv).squaredNorm();
+        if (e2 > opts_.fuse_radius_px * opts_.fuse_radius_px * sigma2(kp)) continue;
+        const int d = features::hamming(pv.descriptor, descs[k]);
+        if (d < best) {
+          best = d;
+          best_k = k;
+        }
+      }
+      if (best_k == nk || best > opts_.max_descriptor_distance || best >= best_dist[best_k]) {
+        continue;
+      }
+      best_dist[best_k] = best;
+      best_pt[best_k] = q;
+    }
+    for (std::uint32_t k = 0; k < nk; ++k) {
+      const map::PointId q = best_pt[k];
+      if (q == map::kNoId || map_.point_is_bad(q)) continue;
+      const map::PointId p = map_.keyframe_point(w, k);
+      if (p == q) continue;
+      if (p == map::kNoId) {
+        if (map_.add_observation(q, w, k)) {
+          map_.update_point(q);
+          ++rep.fused_observations;
+        }
+      } else if (!map_.point_is_bad(p) && map_.merge_points(q, p) >= 0) {
+        ++merged;
+      }
+    }
+  }
+  return merged;
+}
+
+}  // namespace mer::backend

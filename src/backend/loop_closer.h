@@ -1,0 +1,227 @@
+#pragma once
+/// @file loop_closer.h
+/// Loop closure: when the camera comes back to a place it mapped long ago, the drift
+/// accumulated in between (position, heading and, in monocular mode, scale) shows as a
+/// similarity between the new keyframe and the old one. The loop closer finds it and spreads
+/// it over the keyframes of the loop.
+///
+///  1. Retrieval: every keyframe's descriptors give sorted keys (kKeyTables subsets of
+///     kKeyBits bits, as in locality-sensitive hashing). Candidates for a new keyframe are the
+///     keyframes at least `min_keyframe_gap` keyframes older, ranked by the keys they share
+///     with it (at least `min_shared_keys`), and old keyframes it already shares points with
+///     (tracking found their points again).
+///  2. Geometric check, best candidates first: the new keyframe's map-points are matched to
+///     the candidate's by descriptor (nearest neighbour, ratio test, one-to-one); RANSAC over
+///     3-point Umeyama fits finds the similarity S_cand_new (scale fixed to 1 when the map
+///     is metric, RGB-D) whose transfer reprojects each match onto its keypoint in both
+///     keyframes (chi-square gate at the keypoint's pyramid sigma). `min_inliers` must agree.
+///  3. Correction: the new keyframe and its covisible neighbours are moved rigidly onto the
+///     loop; then a Sim(3) pose graph over every keyframe (Ceres; edges: consecutive
+///     keyframes and covisibility pairs with their relative similarity before the correction,
+///     and loop edges between the corrected neighbourhood and the candidate's, the candidate
+///     held fixed) spreads the correction. Every map-point moves with its reference keyframe,
+///     keyframe depths scale with their keyframe, the matched points are merged, and the map
+///     records the correction of the newest keyframe (Map::publish_correction) for the
+///     tracker. A bounded full-graph bundle adjustment (`full_ba_iterations`) follows.
+///
+/// Threading: runs on the back-end thread after local BA and culling (lockstep: inline).
+/// Holds the map's writer lock from retrieval to publication; the full BA takes it itself.
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "core/options.h"
+#include "geometry/camera_model.h"
+#include "geometry/sim3.h"
+#include "map/map.h"
+
+namespace mer::backend {
+
+class LocalBundleAdjuster;
+
+/// Retrieval keys: kKeyTables fixed subsets of kKeyBits descriptor bits each. Two views of
+/// one point usually differ in 10-20 % of their bits, so a 16-bit subset is often the same,
+/// while unrelated descriptors share one by chance 1 in 65536 times.
+inline constexpr int kKeyTables = 4;
+inline constexpr int kKeyBits = 16;
+
+/// The keys of a descriptor, one per table.
+std::array<std::uint16_t, kKeyTables> descriptor_keys(const features::Descriptor& d);
+
+/// Options of loop closure (config section `loop`).
+struct LoopOptions {
+  bool enabled = true;               ///< look for loops at every new keyframe
+  int min_keyframe_gap = 20;         ///< candidates are at least this many keyframes older
+  double min_key_score_ratio = 1.2;  ///< retrieval score a candidate needs, x the median
+  int max_candidates = 3;            ///< candidates checked geometrically per keyframe
+  int max_descriptor_distance = 50;  ///< Hamming distance of a point match, at most
+  double ratio = 0.8;                ///< best / second-best distance, at most
+  int min_matches = 20;              ///< point matches needed before RANSAC
+  int min_inliers = 20;              ///< matches the similarity must explain
+  int ransac_iterations = 300;       ///< 3-point samples
+  double inlier_chi2 = 5.991;        ///< squared transfer error / sigma^2 (2 dof, 95 %)
+  int min_edge_weight = 15;          ///< shared points a covisibility pose-graph edge needs
+  int pose_graph_iterations = 20;    ///< Levenberg-Marquardt iterations of the pose graph
+  double fuse_radius_px = 6.0;       ///< loop fusion search radius, keypoint sigmas
+  int full_ba_iterations = 10;       ///< full-graph BA iterations after a loop (0: none)
+  int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
+  int seed = 1;                      ///< RANSAC sampling seed
+
+  template <class V>
+  void visit(V& v) {
+    v.field("enabled", enabled, "look for loops at every new keyframe");
+    v.field("min_keyframe_gap", min_keyframe_gap,
+            "loop candidates are at least this many keyframes older than the new one",
+            options::Range<int>{2, 100000});
+    v.field("min_key_score_ratio", min_key_score_ratio,
+            "retrieval score a candidate needs, as a multiple of the median over the old "
+            "keyframes; the score is the number of distinct descriptor keys (4 tables of 16 "
+            "bits) shared with the new keyframe, each weighted by log(keyframes / keyframes "
+            "with that key)",
+            options::Range<double>{0.0, 1e9});
+    v.field("max_candidates", max_candidates,
+            "candidates checked geometrically per keyframe, most shared keys first",
+            options::Range<int>{1, 100});
+    v.field("max_descriptor_distance", max_descriptor_distance,
+            "Hamming distance of a point match, at most", options::Range<int>{0, 256});
+    v.field("ratio", ratio, "best / second-best descriptor distance of a match, at most",
+            options::Range<double>{0.1, 1.0});
+    v.field("min_matches", min_matches, "point matches needed before RANSAC",
+            options::Range<int>{3, 100000});
+    v.field("min_inliers", min_inliers, "matches the loop similarity must explain",
+            options::Range<int>{3, 100000});
+    v.field("ransac_iterations", ransac_iterations, "3-point RANSAC samples",
+            options::Range<int>{1, 1000000});
+    v.field("inlier_chi2", inlier_chi2,
+            "squared transfer error / keypoint sigma^2 of an inlier, in both keyframes",
+            options::Range<double>{0.1, 1000.0});
+    v.field("min_edge_weight", min_edge_weight,
+            "shared points a covisibility edge of the pose graph needs",
+            options::Range<int>{1, 100000});
+    v.field("fuse_radius_px", fuse_radius_px,
+            "loop fusion: an old point projected into a corrected keyframe is matched to the "
+            "keypoints within this radius, in sigmas of the keypoint's level (1 px at level 0)",
+            options::Range<double>{0.1, 1000.0});
+    v.field("pose_graph_iterations", pose_graph_iterations,
+            "Levenberg-Marquardt iterations of the Sim(3) pose graph",
+            options::Range<int>{1, 10000});
+    v.field("full_ba_iterations", full_ba_iterations,
+            "full-graph bundle adjustment iterations after a loop (0: none; a new keyframe "
+            "pre-empts it)",
+            options::Range<int>{0, 10000});
+    v.field("cooldown_keyframes", cooldown_keyframes,
+            "keyframes after a closed loop before the next loop is looked for",
+            options::Range<int>{0, 100000});
+    v.field("seed", seed, "RANSAC sampling seed", options::Range<int>{0, 1 << 30});
+  }
+};
+
+/// What one spin did.
+struct LoopReport {
+  int candidates = 0;                          ///< candidates checked geometrically
+  bool closed = false;                         ///< a loop was found and corrected
+  map::KeyframeId loop_keyframe = map::kNoId;  ///< the old keyframe it closed on
+  std::uint64_t loop_seq = 0;                  ///< its frame
+  int matches = 0;             ///< point matches with the loop keyframe (best candidate)
+  int inliers = 0;             ///< of those, explained by the similarity
+  double scale = 1.0;          ///< scale of the correction at the new keyframe
+  double shift = 0.0;          ///< translation of the new keyframe by the correction, map units
+  int keyframes = 0;           ///< keyframes in the pose graph
+  int merged_points = 0;       ///< duplicate points merged
+  int fused_observations = 0;  ///< old points observed by window keyframes through fusion
+  double ms = 0.0;             ///< wall time, full BA excluded
+  double full_ba_ms = 0.0;
+};
+
+/// Totals over a run (summary.json `loop`).
+struct LoopTotals {
+  std::uint64_t keyframes_checked = 0;   ///< spins that looked for a loop
+  std::uint64_t candidates_checked = 0;  ///< geometric checks
+  std::uint64_t loops_closed = 0;
+  std::uint64_t merged_points = 0;
+  double max_ms = 0.0;  ///< longest spin, full BA excluded
+  double max_full_ba_ms = 0.0;
+  LoopReport last_loop;  ///< the last loop closed
+};
+
+/// Loop-closure stage: `spin_once(new keyframe) -> LoopReport`.
+class LoopCloser {
+ public:
+  /// `metric`: the map has a known scale (RGB-D): loops are rigid. `ba` runs the full-graph
+  /// optimization after a loop (may be null: none).
+  LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2, bool metric,
+             LocalBundleAdjuster* ba);
+
+  /// Looks for a loop closing at keyframe kf and corrects the map when one is found. Takes the
+  /// map's writer lock itself.
+  LoopReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
+
+  const LoopTotals& totals() const { return totals_; }
+
+ private:
+  struct Match {
+    std::uint32_t kp_new = 0;
+    std::uint32_t kp_old = 0;
+    map::PointId p_new = map::kNoId;
+    map::PointId p_old = map::kNoId;
+    std::uint32_t old_view = 0;  ///< index in old_views_ of the keyframe kp_old belongs to
+  };
+  /// An old keyframe whose points are matched (the candidate and its old neighbours).
+  struct OldView {
+    map::KeyframeId kf = map::kNoId;
+    SE3d T_view_cand = SE3d::Identity();  ///< candidate camera -> this keyframe's camera
+  };
+  std::vector<OldView> old_views_;
+  int match_points(map::KeyframeId kf, map::KeyframeId cand);
+  int ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
+                  geometry::Sim3d& S_cand_new);
+  int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+              const geometry::Pinhole& K, LoopReport& rep);
+  float sigma2(const features::Keypoint& k) const;
+  /// Projects the points of `old_kfs` into each of `window` (corrected poses) and matches them
+  /// to keypoints by descriptor (chi-square gate at the keypoint's sigma): a free keypoint
+  /// gets an observation of the old point, a keypoint tracking another point has its point
+  /// merged into the old one. Returns the points merged.
+  int fuse_loop(const std::vector<map::KeyframeId>& window,
+                const std::vector<map::KeyframeId>& old_kfs, const geometry::Pinhole& K,
+                LoopReport& rep);
+
+  /// A loop edge of an earlier loop (ids checked by generation).
+  struct LoopEdge {
+    map::KeyframeId a = map::kNoId;
+    map::Generation gen_a = map::kNoGeneration;
+    map::KeyframeId b = map::kNoId;
+    map::Generation gen_b = map::kNoGeneration;
+  };
+  std::vector<LoopEdge> loop_edges_;
+  LoopOptions opts_;
+  map::Map& map_;
+  std::vector<float> level_sigma2_;
+  bool metric_;
+  LocalBundleAdjuster* ba_;
+  /// Retrieval keys of a keyframe slot's occupant (sorted per table), made on first use.
+  struct KeyframeKeys {
+    map::Generation generation = map::kNoGeneration;
+    std::array<std::vector<std::uint16_t>, kKeyTables> keys;
+  };
+  const KeyframeKeys& keys_of(map::KeyframeId kf);
+  /// Sum over the distinct keys a and b share of the key's inverse keyframe frequency
+  /// log(keyframes / keyframes with the key): keys every keyframe has count for nothing.
+  double shared_keys(const KeyframeKeys& a, const KeyframeKeys& b) const;
+  std::vector<KeyframeKeys> keys_;
+  std::vector<std::uint32_t> key_frequency_;  // per table and key: keyframes keyed with it
+  std::uint32_t keyed_keyframes_ = 0;
+  std::uint64_t last_loop_serial_ = 0;
+  bool any_loop_ = false;
+  std::uint32_t rng_ = 1;
+  // Scratch.
+  std::vector<Match> matches_;
+  std::vector<std::uint8_t> inlier_;
+  std::vector<Eigen::Vector3d> x_new_;  // matched points in the new keyframe's camera
+  std::vector<Eigen::Vector3d> x_old_;  // in the loop keyframe's camera
+  LoopTotals totals_;
+};
+
+}  // namespace mer::backend
