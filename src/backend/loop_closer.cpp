@@ -23,6 +23,8 @@ using geometry::Sim3d;
 constexpr std::size_t kLoopNeighbours = 6;
 /// Covisible keyframes read per keyframe (map.max_covisible_per_keyframe bounds it anyway).
 constexpr std::size_t kMaxCovisible = 64;
+/// A pending loop expires when this many keyframes pass without it being seen again.
+constexpr std::uint64_t kConsistencyWindowKeyframes = 3;
 /// Loop edges remembered for the pose graphs of later loops.
 constexpr std::size_t kMaxLoopEdges = 4096;
 /// A Sim(3) fit's scale outside [1/k, k] is not drift, it is a wrong match.
@@ -272,6 +274,29 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     const int inliers = ransac_sim3(kf, cand, K, S_cand_new);
     MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
     if (inliers < opts_.min_inliers) continue;
+    // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
+    // travelled since the old one (perceptual aliasing: a similar place far away).
+    const double drift = implied_drift(kf, cand, S_cand_new);
+    if (drift > opts_.max_drift_fraction) {
+      MER_LOG_DEBUG("loop: refused, it implies %.1f %% drift", 100.0 * drift);
+      ++rep.refused_drift;
+      continue;
+    }
+    // Consistency: the loop must be seen again by the next keyframes, on the same old place
+    // (the candidate or a keyframe covisible with it), before the map is corrected. A place
+    // that only looks like an old one rarely does so twice in a row.
+    const bool same_place =
+        pending_.count > 0 && serial <= pending_.serial + kConsistencyWindowKeyframes &&
+        (cand == pending_.cand || map_.covisibility_weight(cand, pending_.cand) > 0 ||
+         map_.covisibility_weight(pending_.cand, cand) > 0);
+    const int agreeing = same_place ? pending_.count + 1 : 1;
+    MER_LOG_DEBUG("loop: %d of %d consecutive checks agree", agreeing, opts_.consistent_checks);
+    if (agreeing < opts_.consistent_checks) {
+      pending_ = Pending{cand, serial, agreeing};
+      ++rep.pending;
+      break;
+    }
+    pending_ = Pending{};
     rep.matches = m;
     rep.inliers = inliers;
     rep.loop_keyframe = cand;
@@ -303,6 +328,34 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   }
   totals_.max_ms = std::max(totals_.max_ms, rep.ms);
   return rep;
+}
+
+double LoopCloser::implied_drift(map::KeyframeId kf, map::KeyframeId cand,
+                                 const Sim3d& S_cand_new) const {
+  SE3d T_w_new;
+  SE3d T_w_cand;
+  if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_cand)) {
+    return std::numeric_limits<double>::infinity();
+  }
+  const Eigen::Vector3d corrected = (Sim3d::from_se3(T_w_cand) * S_cand_new).t;
+  const double shift = (corrected - T_w_new.translation()).norm();
+  // Path from the old keyframe to the new one through the live keyframes between them.
+  const std::uint64_t s0 = map_.keyframe_serial(cand);
+  const std::uint64_t s1 = map_.keyframe_serial(kf);
+  std::vector<std::pair<std::uint64_t, Eigen::Vector3d>> centres;
+  for (map::KeyframeId id = 0; id < map_.num_keyframes(); ++id) {
+    SE3d T;
+    if (!map_.keyframe_is_live(id) || !map_.keyframe_pose(id, T)) continue;
+    const std::uint64_t s = map_.keyframe_serial(id);
+    if (s >= s0 && s <= s1) centres.emplace_back(s, T.translation());
+  }
+  std::sort(centres.begin(), centres.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  double path = 0.0;
+  for (std::size_t i = 1; i < centres.size(); ++i) {
+    path += (centres[i].second - centres[i - 1].second).norm();
+  }
+  return path > 0.0 ? shift / path : std::numeric_limits<double>::infinity();
 }
 
 int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {

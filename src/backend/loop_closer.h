@@ -67,6 +67,8 @@ struct LoopOptions {
   double fuse_radius_px = 6.0;       ///< loop fusion search radius, keypoint sigmas
   int full_ba_iterations = 10;       ///< full-graph BA iterations after a loop (0: none)
   int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
+  int consistent_checks = 1;         ///< consecutive keyframes that must find the same place
+  double max_drift_fraction = 0.2;   ///< a loop implying more drift per path length is refused
   int seed = 1;                      ///< RANSAC sampling seed
 
   template <class V>
@@ -111,6 +113,14 @@ struct LoopOptions {
             "full-graph bundle adjustment iterations after a loop (0: none; a new keyframe "
             "pre-empts it)",
             options::Range<int>{0, 10000});
+    v.field("max_drift_fraction", max_drift_fraction,
+            "a loop that would move the new keyframe by more than this fraction of the path "
+            "travelled since the old keyframe is refused (a similar place elsewhere)",
+            options::Range<double>{0.0, 1e6});
+    v.field("consistent_checks", consistent_checks,
+            "keyframes in a row (at most 3 apart) whose geometric check must find the same old "
+            "place (the candidate or a keyframe covisible with it) before the loop is corrected",
+            options::Range<int>{1, 100});
     v.field("cooldown_keyframes", cooldown_keyframes,
             "keyframes after a closed loop before the next loop is looked for",
             options::Range<int>{0, 100000});
@@ -120,8 +130,10 @@ struct LoopOptions {
 
 /// What one spin did.
 struct LoopReport {
-  int candidates = 0;                          ///< candidates checked geometrically
-  bool closed = false;                         ///< a loop was found and corrected
+  int candidates = 0;     ///< candidates checked geometrically
+  int pending = 0;        ///< a check passed, waiting for the next keyframes to agree
+  int refused_drift = 0;  ///< checks passed but refused by max_drift_fraction
+  bool closed = false;    ///< a loop was found and corrected
   map::KeyframeId loop_keyframe = map::kNoId;  ///< the old keyframe it closed on
   std::uint64_t loop_seq = 0;                  ///< its frame
   int matches = 0;             ///< point matches with the loop keyframe (best candidate)
@@ -175,6 +187,9 @@ class LoopCloser {
   };
   std::vector<OldView> old_views_;
   int match_points(map::KeyframeId kf, map::KeyframeId cand);
+  /// Shift of the new keyframe by the loop, over the path travelled since the candidate.
+  double implied_drift(map::KeyframeId kf, map::KeyframeId cand,
+                       const geometry::Sim3d& S_cand_new) const;
   int ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
                   geometry::Sim3d& S_cand_new);
   int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
@@ -196,6 +211,13 @@ class LoopCloser {
     map::Generation gen_b = map::kNoGeneration;
   };
   std::vector<LoopEdge> loop_edges_;
+  /// A loop that passed the geometric check and waits to be seen again (consistent_checks).
+  struct Pending {
+    map::KeyframeId cand = map::kNoId;
+    std::uint64_t serial = 0;  ///< of the keyframe that saw it last
+    int count = 0;             ///< consecutive agreeing checks so far
+  };
+  Pending pending_;
   LoopOptions opts_;
   map::Map& map_;
   std::vector<float> level_sigma2_;

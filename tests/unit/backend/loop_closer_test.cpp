@@ -46,7 +46,7 @@ TEST(LoopOptions, EveryFieldHasADocLine) {
   DocCheck v;
   LoopOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 16);
+  EXPECT_EQ(v.fields, 18);
 }
 
 }  // namespace
