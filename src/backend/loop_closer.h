@@ -7,22 +7,28 @@
 ///
 ///  1. Retrieval: every keyframe's descriptors give sorted keys (kKeyTables subsets of
 ///     kKeyBits bits, as in locality-sensitive hashing). Candidates for a new keyframe are the
-///     keyframes at least `min_keyframe_gap` keyframes older, ranked by the keys they share
-///     with it (at least `min_shared_keys`), and old keyframes it already shares points with
-///     (tracking found their points again).
-///  2. Geometric check, best candidates first: the new keyframe's map-points are matched to
-///     the candidate's by descriptor (nearest neighbour, ratio test, one-to-one); RANSAC over
-///     3-point Umeyama fits finds the similarity S_cand_new (scale fixed to 1 when the map
-///     is metric, RGB-D) whose transfer reprojects each match onto its keypoint in both
-///     keyframes (chi-square gate at the keypoint's pyramid sigma). `min_inliers` must agree.
-///  3. Correction: the new keyframe and its covisible neighbours are moved rigidly onto the
-///     loop; then a Sim(3) pose graph over every keyframe (Ceres; edges: consecutive
+///     keyframes at least `min_keyframe_gap` keyframes older: those it already shares points
+///     with (tracking found their points again) first, then those whose score (shared keys,
+///     each weighted by log(keyframes / keyframes with the key)) is at least
+///     `min_key_score_ratio` times the median, best first; `max_candidates` are checked.
+///  2. Geometric check: the new keyframe's map-points are matched by descriptor (nearest
+///     neighbour, ratio test, one-to-one) to the points of the candidate and its old
+///     covisible neighbours; RANSAC over 3-point Umeyama fits finds the similarity S_cand_new
+///     (scale fixed to 1 when the map is metric, RGB-D) whose transfer reprojects each match
+///     onto its keypoint in both keyframes (chi-square gate at the keypoint's pyramid sigma).
+///     `min_inliers` must agree; a loop implying more than `max_drift_fraction` of the path
+///     since the candidate is refused (a similar place elsewhere), and `consistent_checks`
+///     keyframes in a row must find the same place.
+///  3. Correction: the new keyframe and its recent covisible neighbours are moved rigidly
+///     onto the loop; then a Sim(3) pose graph over every keyframe (Ceres; edges: consecutive
 ///     keyframes and covisibility pairs with their relative similarity before the correction,
-///     and loop edges between the corrected neighbourhood and the candidate's, the candidate
-///     held fixed) spreads the correction. Every map-point moves with its reference keyframe,
-///     keyframe depths scale with their keyframe, the matched points are merged, and the map
-///     records the correction of the newest keyframe (Map::publish_correction) for the
-///     tracker. A bounded full-graph bundle adjustment (`full_ba_iterations`) follows.
+///     loop edges between the corrected neighbourhood and the candidate's, and the edges of
+///     earlier loops; the candidate held fixed) spreads the correction. Every map-point moves
+///     with its reference keyframe, keyframe depths scale with their keyframe, the matched
+///     points are merged, the old side's points are fused into the corrected keyframes
+///     (observations of free keypoints, merges of duplicates), and the map records the
+///     correction of the newest keyframe (Map::publish_correction) for the tracker. A bounded
+///     full-graph bundle adjustment (`full_ba_iterations`) follows.
 ///
 /// Threading: runs on the back-end thread after local BA and culling (lockstep: inline).
 /// Holds the map's writer lock from retrieval to publication; the full BA takes it itself.
