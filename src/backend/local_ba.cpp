@@ -424,9 +424,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       const auto kps = map_.keyframe_keypoints(obs[o].first);
       if (obs[o].second >= kps.size()) continue;
       const features::Keypoint& kp = kps[obs[o].second];
-      const auto level = static_cast<std::size_t>(
-          std::clamp<int>(kp.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
-      const double inv_sigma = 1.0 / std::sqrt(static_cast<double>(level_sigma2_[level]));
+      const double inv_sigma =
+          1.0 / std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level)));
       PoseBlock& b = poses[it->second].second;
       // A point behind (or on) a camera that observes it cannot be evaluated: leave that
       // observation out (a solve whose first evaluation fails does nothing at all).

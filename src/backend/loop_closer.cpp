@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numeric>
 #include <utility>
 
 #include <ceres/ceres.h>
@@ -191,10 +192,7 @@ double LoopCloser::shared_keys(const KeyframeKeys& a, const KeyframeKeys& b) con
 }
 
 float LoopCloser::sigma2(const features::Keypoint& k) const {
-  if (level_sigma2_.empty()) return 1.0F;
-  const auto l = static_cast<std::size_t>(
-      std::clamp<int>(k.level, 0, static_cast<int>(level_sigma2_.size()) - 1));
-  return level_sigma2_[l];
+  return features::level_sigma2(level_sigma2_, k.level);
 }
 
 LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
@@ -381,20 +379,33 @@ int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
     std::uint32_t view = 0;
     std::uint32_t kp = 0;
     map::PointId p = map::kNoId;
+    features::Descriptor desc{};  // of keypoint kp in that view
   };
   std::vector<OldPoint> old_pts;
   for (std::uint32_t v = 0; v < old_views_.size(); ++v) {
     const map::KeyframeId id = old_views_[v].kf;
+    const auto descs = map_.keyframe_descriptors(id);
     const std::uint32_t n_old = map_.keyframe_num_keypoints(id);
     for (std::uint32_t j = 0; j < n_old; ++j) {
       const map::PointId q = map_.keyframe_point(id, j);
-      if (q == map::kNoId || map_.point_is_bad(q)) continue;
-      if (std::any_of(old_pts.begin(), old_pts.end(),
-                      [&](const OldPoint& o) { return o.p == q; })) {
-        continue;
-      }
-      old_pts.push_back(OldPoint{v, j, q});
+      if (q != map::kNoId && !map_.point_is_bad(q)) old_pts.push_back(OldPoint{v, j, q, descs[j]});
     }
+  }
+  // Each point once, from the first view that has it (the candidate's first).
+  {
+    std::vector<std::size_t> order(old_pts.size());
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return old_pts[a].p < old_pts[b].p; });
+    std::vector<std::uint8_t> repeat(old_pts.size(), 0);
+    for (std::size_t i = 1; i < order.size(); ++i) {
+      if (old_pts[order[i]].p == old_pts[order[i - 1]].p) repeat[order[i]] = 1;
+    }
+    std::size_t w = 0;
+    for (std::size_t i = 0; i < old_pts.size(); ++i) {
+      if (!repeat[i]) old_pts[w++] = old_pts[i];
+    }
+    old_pts.resize(w);
   }
   const auto descs_new = map_.keyframe_descriptors(kf);
   const std::uint32_t n_new = map_.keyframe_num_keypoints(kf);
@@ -407,8 +418,7 @@ int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
     int second = std::numeric_limits<int>::max();
     std::size_t best_k = 0;
     for (std::size_t k = 0; k < old_pts.size(); ++k) {
-      const auto descs_old = map_.keyframe_descriptors(old_views_[old_pts[k].view].kf);
-      const int d = features::hamming(descs_new[i], descs_old[old_pts[k].kp]);
+      const int d = features::hamming(descs_new[i], old_pts[k].desc);
       if (d < best) {
         second = best;
         best = d;

@@ -231,9 +231,7 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
 }
 
 double KeyframeBuilder::level_sigma2(int level) const {
-  if (level_sigma2_.empty()) return 1.0;
-  const int last = static_cast<int>(level_sigma2_.size()) - 1;
-  return static_cast<double>(level_sigma2_[static_cast<std::size_t>(std::clamp(level, 0, last))]);
+  return static_cast<double>(features::level_sigma2(level_sigma2_, level));
 }
 
 bool KeyframeBuilder::explains_observations(std::uint32_t keep, std::uint32_t drop,

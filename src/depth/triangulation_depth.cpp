@@ -43,10 +43,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
   const SE3d T_ck_w = req.T_w_c.inverse();
   const Eigen::Vector3d c_k = req.T_w_c.translation();
   auto sigma2 = [&](int level) {
-    return req.level_sigma2.empty()
-               ? 1.0
-               : static_cast<double>(req.level_sigma2[static_cast<std::size_t>(
-                     std::clamp<int>(level, 0, static_cast<int>(req.level_sigma2.size()) - 1))]);
+    return static_cast<double>(features::level_sigma2(req.level_sigma2, level));
   };
   const double min_cos_parallax = std::cos(opts_.min_parallax_deg / kRadToDeg);
 

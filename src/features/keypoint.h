@@ -2,9 +2,11 @@
 /// @file keypoint.h
 /// Keypoints and binary descriptors shared by the extractor, the map and the front end.
 
+#include <algorithm>
 #include <array>
 #include <bit>
 #include <cstdint>
+#include <span>
 
 namespace mer::features {
 
@@ -15,6 +17,13 @@ using Descriptor = std::array<std::uint64_t, 4>;
 inline int hamming(const Descriptor& a, const Descriptor& b) {
   return std::popcount(a[0] ^ b[0]) + std::popcount(a[1] ^ b[1]) + std::popcount(a[2] ^ b[2]) +
          std::popcount(a[3] ^ b[3]);
+}
+
+/// Squared keypoint sigma at pyramid level `level` from a per-level table (level clamped to
+/// the table; 1 when the table is empty).
+inline float level_sigma2(std::span<const float> table, int level) {
+  if (table.empty()) return 1.0F;
+  return table[static_cast<std::size_t>(std::clamp(level, 0, static_cast<int>(table.size()) - 1))];
 }
 
 /// A keypoint in level-0 pixel coordinates.

@@ -193,10 +193,7 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
     stamp_[p] = frame_stamp_;
     map::PointView pv;
     if (!map_.read_point(p, pv)) return false;
-    if (min_ref_t_ns > 0 && map_.keyframe_t_ns(pv.ref_keyframe) < min_ref_t_ns) {
-      stamp_[p] = 0;  // Q_T may still take it
-      return false;
-    }
+    if (min_ref_t_ns > 0 && map_.keyframe_t_ns(pv.ref_keyframe) < min_ref_t_ns) return false;
     const auto c = static_cast<std::size_t>(num_cand_++);
     cand_id_[c] = p;
     cand_p_w_[c] = pv.p_w;

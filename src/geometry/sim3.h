@@ -4,6 +4,8 @@
 /// frame a, like SE3d. Monocular maps are known up to scale, so a loop found after the scale
 /// drifted is a similarity between the two ends of the loop, not a rigid motion.
 
+#include <cmath>
+
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 

@@ -2,9 +2,9 @@
 // table uses changes no key and a bit one table uses changes that table's key only.
 #include "backend/loop_closer.h"
 
-#include <string_view>
-
 #include <gtest/gtest.h>
+
+#include "support/doc_check.h"
 
 namespace mer::backend {
 namespace {
@@ -32,18 +32,8 @@ TEST(LoopCloserKeys, EachTableReadsItsOwnBits) {
   }
 }
 
-/// Counts fields and checks that each has a doc line.
-struct DocCheck {
-  int fields = 0;
-  template <typename T, typename C = options::Any>
-  void field(std::string_view key, T& /*value*/, std::string_view doc, const C& /*c*/ = {}) {
-    ++fields;
-    EXPECT_FALSE(doc.empty()) << key;
-  }
-};
-
 TEST(LoopOptions, EveryFieldHasADocLine) {
-  DocCheck v;
+  testing::DocCheck v;
   LoopOptions o;
   o.visit(v);
   EXPECT_EQ(v.fields, 18);

@@ -8,6 +8,8 @@
 
 #include <gtest/gtest.h>
 
+#include "support/doc_check.h"
+
 namespace mer::backend {
 namespace {
 
@@ -250,21 +252,8 @@ TEST(MapCulling, DisabledDoesNothingAndAutoResolvesByDepth) {
   EXPECT_EQ(MapCuller(autos, m, true).options().point_min_observations, 1);
 }
 
-/// Counts fields and checks that each has a doc line.
-struct DocCheck {
-  int fields = 0;
-  template <typename T, typename C = options::Any>
-  void field(std::string_view key, T& /*value*/, std::string_view doc, const C& /*c*/ = {}) {
-    ++fields;
-    EXPECT_FALSE(doc.empty()) << key;
-    if constexpr (!std::is_same_v<T, bool>) {
-      EXPECT_TRUE((std::is_same_v<C, options::Range<T>>)) << key << " has no range";
-    }
-  }
-};
-
 TEST(MapCulling, EveryOptionHasADocLineAndRange) {
-  DocCheck v;
+  testing::DocCheck v;
   CullingOptions o;
   o.visit(v);
   EXPECT_EQ(v.fields, 11);

@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "platform/alloc_counter.h"
+#include "support/doc_check.h"
 
 namespace mer::map {
 namespace {
@@ -109,19 +110,8 @@ TEST(MapOptions, ValidationNamesTheKey) {
   EXPECT_DOUBLE_EQ(effective_options(o).cell_size, 1e-3);
 }
 
-/// Counts fields and checks that each has a doc line and a range.
-struct DocCheck {
-  int fields = 0;
-  template <typename T, typename C = options::Any>
-  void field(std::string_view key, T& /*value*/, std::string_view doc, const C& /*c*/ = {}) {
-    ++fields;
-    EXPECT_FALSE(doc.empty()) << key;
-    EXPECT_TRUE((std::is_same_v<C, options::Range<T>>)) << key << " has no range";
-  }
-};
-
 TEST(MapOptions, EveryFieldHasADocLineAndRange) {
-  DocCheck v;
+  testing::DocCheck v;
   MapOptions o;
   o.visit(v);
   EXPECT_EQ(v.fields, 9);
