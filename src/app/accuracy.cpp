@@ -1,18 +1,26 @@
 #include "app/accuracy.h"
 
 #include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "app/summary.h"
 #include "hal/ground_truth.h"
+#include "hal/replay/dataset_parsers.h"
 #include "pipeline/output_stage.h"
 #include "tools/eval/trajectory_eval.h"
 
 namespace mer::app {
 namespace {
-constexpr std::int64_t kMaxDtNs = 1'000'000;  // estimate and truth share frame timestamps
-constexpr std::size_t kMinPairs = 3;          // Umeyama needs three points
+constexpr std::int64_t kMaxDtNs = 1'000'000;       // estimate and truth share frame timestamps
+constexpr std::size_t kMinPairs = 3;               // Umeyama needs three points
+constexpr double kMaxQuaternionNormError = 1e-6;   // written with 9 decimals
+constexpr double kUnanchoredPoseTolerance = 1e-6;  // both files print the same pose, 9 decimals
 }  // namespace
 
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
@@ -76,25 +84,90 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
   return a;
 }
 
-Status write_final_ba_trajectory(const std::string& dir,
-                                 const std::vector<pipeline::KeyframeCorrection>& corrections) {
+Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames) {
+  std::ifstream in(path);
+  if (!in) return input_error("cannot read '" + path + "'");
+  constexpr std::size_t kFields = 9;  // t kf_t tx ty tz qx qy qz qw
+  std::string line;
+  std::size_t k = 0;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (line.empty() || line[0] == '#') continue;
+    auto bad = [&](const std::string& what) {
+      return input_error(path + ":" + std::to_string(line_no) + ": " + what);
+    };
+    std::istringstream ls(line);
+    std::vector<std::string> tok;
+    for (std::string t; ls >> t;) tok.push_back(t);
+    if (tok.size() != kFields) {
+      return bad("expected " + std::to_string(kFields) + " fields, got " +
+                 std::to_string(tok.size()));
+    }
+    if (k >= frames.size()) return bad("more frames than trajectory.txt has");
+    pipeline::AnchoredFrame& f = frames[k++];
+    std::int64_t t_ns = 0;
+    if (!hal::parse_seconds_ns(tok[0], t_ns)) return bad("bad timestamp '" + tok[0] + "'");
+    if (t_ns != f.t_ns) return bad("timestamp " + tok[0] + " is not trajectory.txt's next");
+    f.has_anchor = tok[1] != "-";
+    if (f.has_anchor && !hal::parse_seconds_ns(tok[1], f.anchor_t_ns)) {
+      return bad("bad keyframe timestamp '" + tok[1] + "'");
+    }
+    std::array<double, 7> v{};
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      const std::string& s = tok[i + 2];
+      char* end = nullptr;
+      v[i] = std::strtod(s.c_str(), &end);
+      if (end != s.c_str() + s.size() || !std::isfinite(v[i])) {
+        return bad("bad number '" + s + "'");
+      }
+    }
+    const Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);
+    if (std::abs(q.norm() - 1.0) > kMaxQuaternionNormError) return bad("quaternion not unit");
+    const SE3d T = make_se3(q.normalized(), Eigen::Vector3d(v[0], v[1], v[2]));
+    if (f.has_anchor) {
+      f.T_kf_c = T;
+    } else if (!T.isApprox(f.T_w_c, kUnanchoredPoseTolerance)) {
+      return bad("frame without keyframe does not repeat its trajectory.txt pose");
+    }
+  }
+  if (k != frames.size()) {
+    return input_error("'" + path + "': " + std::to_string(k) + " frames, trajectory.txt has " +
+                       std::to_string(frames.size()));
+  }
+  return Status::ok();
+}
+
+Status write_final_trajectory(const std::string& dir,
+                              std::span<const pipeline::FinalKeyframePose> keyframes,
+                              pipeline::FinalTrajectoryStats& stats) {
   const std::filesystem::path d(dir);
-  if (corrections.empty()) return invalid_argument("final BA: the map has no keyframe");
+  stats = pipeline::FinalTrajectoryStats{};
+  std::error_code ec;
+  if (std::filesystem::file_size(d / "trajectory.txt", ec) == 0 && !ec) {
+    return write_file_atomic((d / "trajectory_final.txt").string(), "");  // nothing tracked
+  }
   auto est = hal::load_tum_trajectory((d / "trajectory.txt").string());
   if (!est.is_ok()) return est.status();
+  if (est.value().duplicates_dropped > 0) {
+    return input_error("'" + (d / "trajectory.txt").string() + "': repeated timestamps");
+  }
+  std::vector<pipeline::AnchoredFrame> frames(est.value().poses.size());
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    frames[i].t_ns = est.value().poses[i].t_ns;
+    frames[i].T_w_c = est.value().poses[i].T_w_c;
+  }
+  if (Status s = read_frame_anchors((d / "frame_anchors.txt").string(), frames); !s.is_ok()) {
+    return s;
+  }
+  const std::vector<StampedPose> poses = pipeline::reanchor_frames(frames, keyframes, stats);
   std::string text;
   char line[256];
-  for (const StampedPose& p : est.value().poses) {
-    // Latest keyframe at or before the frame (keyframes are in time order).
-    auto it = std::upper_bound(
-        corrections.begin(), corrections.end(), p.t_ns,
-        [](std::int64_t t, const pipeline::KeyframeCorrection& c) { return t < c.t_ns; });
-    const pipeline::KeyframeCorrection& c = it == corrections.begin() ? *it : *(it - 1);
-    const SE3d T = c.T_w_c_after * c.T_w_c_before.inverse() * p.T_w_c;
-    const int n = pipeline::format_tum_line(line, sizeof line, p.t_ns, T);
+  for (const StampedPose& p : poses) {
+    const int n = pipeline::format_tum_line(line, sizeof line, p.t_ns, p.T_w_c);
     if (n > 0) text.append(line, static_cast<std::size_t>(n));
   }
-  return write_file_atomic((d / "trajectory_final_ba.txt").string(), text);
+  return write_file_atomic((d / "trajectory_final.txt").string(), text);
 }
 
 }  // namespace mer::app

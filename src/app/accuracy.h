@@ -6,7 +6,9 @@
 /// alignment for monocular runs (scale is unobservable), SE(3) for RGB-D.
 
 #include <cstddef>
+#include <span>
 #include <string>
+#include <vector>
 
 #include "pipeline/pipeline.h"
 
@@ -34,11 +36,16 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
                             const pipeline::PipelineStats& stats,
                             const std::string& trajectory = "trajectory.txt");
 
-/// Writes `dir`/trajectory_final_ba.txt: every pose of `dir`/trajectory.txt moved with the
-/// correction the full-graph optimization applied to its keyframe (the latest keyframe at or
-/// before the frame; the first keyframe for earlier frames): T' = T_kf_after T_kf_before^-1 T.
-/// The file is written atomically; trajectory.txt is not touched.
-Status write_final_ba_trajectory(const std::string& dir,
-                                 const std::vector<pipeline::KeyframeCorrection>& corrections);
+/// Reads `path` (frame_anchors.txt: `t kf_t tx ty tz qx qy qz qw`, kf_t `-` for a frame
+/// without anchor) into `frames`, whose t_ns and T_w_c (from trajectory.txt) are set:
+/// line k must carry frame k's timestamp. Errors name the file and line.
+Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames);
+
+/// Writes `dir`/trajectory_final.txt: every pose of `dir`/trajectory.txt re-anchored to
+/// `keyframes` (the final map, Pipeline::final_keyframe_poses) through
+/// `dir`/frame_anchors.txt (pipeline/final_trajectory.h). Written atomically.
+Status write_final_trajectory(const std::string& dir,
+                              std::span<const pipeline::FinalKeyframePose> keyframes,
+                              pipeline::FinalTrajectoryStats& stats);
 
 }  // namespace mer::app

@@ -46,8 +46,8 @@ std::string usage() {
   --intrinsics fx,fy,cx,cy[,k1,k2,p1,p2]
                      calibration override (pixels; radtan distortion)
   --focal auto|fixed estimate the focal length (auto) or trust the calibration
-  --final-ba         after the stream, optimize the whole graph and write
-                     trajectory_final_ba.txt (scored in summary.json accuracy_final_ba)
+  --final-ba         after the stream, optimize the whole graph (trajectory_final.txt
+                     and keyframes_final.txt then carry its result)
   --print-config     print the effective configuration as YAML and exit
   --quiet            no human-readable summary on stdout
   --help, --version

@@ -124,15 +124,15 @@ int main(int argc, char** argv) {
     info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
     info.accuracy_keyframes = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
                                                 "keyframes_final.txt");
-    if (pipe.stats().final_ba.ran && !args.output_dir.empty()) {
-      if (Status w =
-              app::write_final_ba_trajectory(args.output_dir, pipe.stats().final_ba.corrections);
+    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
+      if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
+                                                 info.final_trajectory);
           w.is_ok()) {
-        info.final_ba = true;
-        info.accuracy_final_ba = app::evaluate_run(args.output_dir, config.pipeline.mode,
-                                                   pipe.stats(), "trajectory_final_ba.txt");
+        info.final_trajectory_written = true;
+        info.accuracy_final = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
+                                                "trajectory_final.txt");
       } else {
-        std::cerr << "mer_slam: error: final BA trajectory: " << w.message() << "\n";
+        std::cerr << "mer_slam: error: final trajectory: " << w.message() << "\n";
         if (code == 0) code = 4;
       }
     }

@@ -31,9 +31,10 @@ struct RunInfo {
   bool stopped_by_signal = false;
   std::string error;                  ///< non-empty when the run failed
   AccuracyReport accuracy;            ///< ATE against the source's ground truth (when it had one)
-  bool final_ba = false;              ///< pipeline.final_ba ran and its trajectory was written
-  AccuracyReport accuracy_final_ba;   ///< ATE of trajectory_final_ba.txt
   AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
+  bool final_trajectory_written = false;            ///< trajectory_final.txt was written
+  pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
+  AccuracyReport accuracy_final;  ///< ATE of trajectory_final.txt (frames on the final map)
 };
 
 /// Renders summary.json.

@@ -30,7 +30,9 @@ MapCuller::MapCuller(const CullingOptions& opts, map::Map& map, bool metric_dept
       covis_(static_cast<std::size_t>(map.options().max_covisible_per_keyframe)),
       obs_(static_cast<std::size_t>(map.options().max_observations_per_point)),
       obs_histogram_(static_cast<std::size_t>(map.options().max_observations_per_point) + 1U),
-      ranked_(static_cast<std::size_t>(opts_.max_capacity_removals)) {}
+      ranked_(static_cast<std::size_t>(opts_.max_capacity_removals)),
+      parent_covis_(static_cast<std::size_t>(map.options().max_covisible_per_keyframe)),
+      lineage_(static_cast<std::size_t>(opts_.lineage_capacity)) {}
 
 int MapCuller::cull_points() {
   const std::uint64_t now = map_.keyframes_added();
@@ -87,11 +89,40 @@ bool MapCuller::removable(map::KeyframeId kf) const {
          serial + static_cast<std::uint64_t>(opts_.keep_newest_keyframes) < map_.keyframes_added();
 }
 
+bool MapCuller::parent_of(map::KeyframeId kf, CulledKeyframe& rec) {
+  if (lineage_.empty()) return false;
+  // The live keyframe sharing most points with kf (else the newest one) carries it on.
+  map::KeyframeId parent = map::kNoId;
+  const std::size_t n = map_.covisible_keyframes(kf, parent_covis_);
+  for (std::size_t i = 0; i < n && parent == map::kNoId; ++i) {
+    if (parent_covis_[i].id != kf && map_.keyframe_is_live(parent_covis_[i].id)) {
+      parent = parent_covis_[i].id;
+    }
+  }
+  if (parent == map::kNoId) parent = map_.newest_keyframe();
+  SE3d T_w_kf;
+  SE3d T_w_parent;
+  if (parent == map::kNoId || parent == kf || !map_.keyframe_pose(kf, T_w_kf) ||
+      !map_.keyframe_pose(parent, T_w_parent)) {
+    return false;
+  }
+  rec = CulledKeyframe{map_.keyframe_t_ns(kf), map_.keyframe_t_ns(parent),
+                       T_w_parent.inverse() * T_w_kf};
+  return true;
+}
+
 bool MapCuller::remove(map::KeyframeId kf, CullingReport& rep) {
+  CulledKeyframe rec;
+  const bool has_parent = parent_of(kf, rec);
   std::uint32_t orphaned = 0;
   if (!map_.remove_keyframe(kf, static_cast<std::uint32_t>(opts_.point_min_observations),
                             &orphaned)) {
     return false;
+  }
+  if (has_parent) {
+    lineage_[lineage_next_] = rec;
+    lineage_next_ = (lineage_next_ + 1) % lineage_.size();
+    lineage_count_ = std::min(lineage_count_ + 1, lineage_.size());
   }
   ++rep.culled_keyframes;
   rep.orphaned_points += static_cast<int>(orphaned);

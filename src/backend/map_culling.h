@@ -35,6 +35,7 @@
 /// keyframe and two passes over the point slots. No allocation after construction.
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "core/options.h"
@@ -55,6 +56,7 @@ struct CullingOptions {
   int point_min_observations = 0;       ///< fewer observations free a point (0: auto by mode)
   double capacity_fraction = 0.9;       ///< live share of map slots that triggers removals
   int max_capacity_removals = 2;        ///< keyframes removed per pass at capacity
+  int lineage_capacity = 16384;         ///< removed keyframes remembered for re-anchoring
 
   template <class V>
   void visit(V& v) {
@@ -100,6 +102,11 @@ struct CullingOptions {
             options::Range<double>{0.1, 1.0});
     v.field("max_capacity_removals", max_capacity_removals,
             "keyframes removed per pass when above capacity_fraction", options::Range<int>{1, 100});
+    v.field("lineage_capacity", lineage_capacity,
+            "removed keyframes whose pose relative to their strongest covisible keyframe is "
+            "kept, so frames tracked against them can be re-anchored to the final map "
+            "(trajectory_final.txt; 72 B each, the oldest forgotten first)",
+            options::Range<int>{0, 10000000});
   }
 };
 
@@ -127,6 +134,14 @@ struct CullingTotals {
   double max_ms = 0.0;
 };
 
+/// A removed keyframe's place relative to the live keyframe that shared most points with it
+/// when it was removed: its final pose is the parent's final pose times T_parent_kf.
+struct CulledKeyframe {
+  std::int64_t t_ns = 0;         ///< the removed keyframe's timestamp
+  std::int64_t parent_t_ns = 0;  ///< the parent's timestamp
+  SE3d T_parent_kf = SE3d::Identity();
+};
+
 /// The culling stage (a map writer: see spin_once).
 class MapCuller {
  public:
@@ -143,6 +158,11 @@ class MapCuller {
   double redundancy(map::KeyframeId kf);
 
   const CullingTotals& totals() const { return totals_; }
+  /// The last options().lineage_capacity removed keyframes, in no particular order (read
+  /// when the back end has stopped).
+  std::span<const CulledKeyframe> lineage() const {
+    return std::span<const CulledKeyframe>(lineage_.data(), lineage_count_);
+  }
   /// Options in effect (`point_min_observations` resolved).
   const CullingOptions& options() const { return opts_; }
 
@@ -150,6 +170,8 @@ class MapCuller {
   int cull_points();
   bool removable(map::KeyframeId kf) const;
   bool remove(map::KeyframeId kf, CullingReport& rep);
+  /// kf's lineage record (false: lineage off, or no live keyframe to carry it).
+  bool parent_of(map::KeyframeId kf, CulledKeyframe& rec);
   void cull_at_capacity(CullingReport& rep);
 
   CullingOptions opts_;
@@ -164,6 +186,10 @@ class MapCuller {
     map::KeyframeId kf = map::kNoId;
   };
   std::vector<Ranked> ranked_;  // max_capacity_removals best removal candidates
+  std::vector<map::CovisibleKeyframe> parent_covis_;  // max_covisible_per_keyframe
+  std::vector<CulledKeyframe> lineage_;               // ring of lineage_capacity
+  std::size_t lineage_count_ = 0;
+  std::size_t lineage_next_ = 0;
 };
 
 }  // namespace mer::backend

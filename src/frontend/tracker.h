@@ -120,6 +120,8 @@ class Tracker {
   /// corrections published since the last frame (loop closure), so that the prediction
   /// lands where the corrected map is.
   void follow_map_correction();
+  /// Fills r's anchor: its pose relative to the map's newest keyframe (none yet: no anchor).
+  void set_anchor(TrackingResult& r) const;
   bool track(const hal::Frame& frame, TrackingResult& r);
   bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
   bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);

@@ -60,9 +60,14 @@ struct TrackingResult {
   std::uint64_t seq = 0;  ///< frame sequence number from the source
   std::int64_t t_ns = 0;  ///< frame timestamp, ns
   TrackState state = TrackState::kNotInitialized;
-  bool is_keyframe = false;          ///< this frame became a keyframe
-  bool keyframe_job = false;         ///< the keyframe still has to be created (queue a job)
-  SE3d T_w_c = SE3d::Identity();     ///< camera-to-world pose (valid when tracked)
+  bool is_keyframe = false;       ///< this frame became a keyframe
+  bool keyframe_job = false;      ///< the keyframe still has to be created (queue a job)
+  SE3d T_w_c = SE3d::Identity();  ///< camera-to-world pose (valid when tracked)
+  /// Tracked with a keyframe in the map: the pose relative to the newest keyframe as the map
+  /// held it then (T_kf_c = T_w_kf^-1 T_w_c), to re-anchor the frame to the final map.
+  bool has_anchor = false;
+  std::int64_t anchor_t_ns = 0;      ///< that keyframe's timestamp, ns (its identity)
+  SE3d T_kf_c = SE3d::Identity();    ///< pose relative to that keyframe
   std::int32_t num_features = 0;     ///< features detected
   std::int32_t num_matches = 0;      ///< map-point matches given to PnP
   std::int32_t num_inliers = 0;      ///< matches consistent with the pose

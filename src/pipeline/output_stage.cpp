@@ -37,6 +37,18 @@ int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& 
                        t.z(), q.x(), q.y(), q.z(), q.w());
 }
 
+int format_anchor_line(char* buf, std::size_t size, std::int64_t t_ns,
+                       const std::int64_t* anchor_t_ns, const SE3d& T) {
+  const Eigen::Quaterniond q(T.linear());
+  const Eigen::Vector3d& t = T.translation();
+  char stamp[32];
+  char anchor[32] = "-";
+  format_seconds(stamp, sizeof stamp, t_ns);
+  if (anchor_t_ns != nullptr) format_seconds(anchor, sizeof anchor, *anchor_t_ns);
+  return std::snprintf(buf, size, "%s %s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", stamp, anchor,
+                       t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+}
+
 OutputStage::~OutputStage() {
   (void)close();
 }
@@ -59,6 +71,7 @@ Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   Status s = open_file(trajectory_, (d / "trajectory.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(keyframes_, (d / "keyframes.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(ground_truth_, (d / "groundtruth.txt").string(), nullptr);
+  if (s.is_ok()) s = open_file(anchors_, (d / "frame_anchors.txt").string(), nullptr);
   if (s.is_ok()) {
     s = open_file(frames_csv_, (d / "frames.csv").string(),
                   "seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,query_s,"
@@ -80,6 +93,10 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
+    const int na = format_anchor_line(line.data(), line.size(), r.t_ns,
+                                      r.has_anchor ? &r.anchor_t_ns : nullptr,
+                                      r.has_anchor ? r.T_kf_c : r.T_w_c);
+    std::fwrite(line.data(), 1, static_cast<std::size_t>(na), anchors_.f);
   }
   if (r.has_ground_truth) {
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c_gt);
@@ -108,7 +125,8 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
 }
 
 void OutputStage::flush_all() {
-  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &frames_csv_, &latency_csv_}) {
+  for (File* f :
+       {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_}) {
     if (f->f != nullptr && (std::fflush(f->f) != 0 || std::ferror(f->f) != 0)) write_error_ = true;
   }
 }
@@ -116,7 +134,8 @@ void OutputStage::flush_all() {
 Status OutputStage::close() {
   Status result;
   flush_all();
-  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &frames_csv_, &latency_csv_}) {
+  for (File* f :
+       {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_}) {
     if (f->f == nullptr) continue;
     const bool bad = std::ferror(f->f) != 0;
     if (std::fclose(f->f) != 0 || bad) {

@@ -8,6 +8,10 @@
 /// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every tracked frame
 /// - keyframes.txt   same format, keyframes only
 /// - groundtruth.txt same format, the true pose of every frame whose source knew it
+/// - frame_anchors.txt `t kf_t tx ty tz qx qy qz qw`: every tracked frame's pose relative to
+///                   the keyframe (stamp kf_t) it was anchored to, T_kf_c; kf_t is `-` and the
+///                   pose T_w_c for a frame tracked before any keyframe existed. mer_slam
+///                   re-anchors them to the final map (final_trajectory.h).
 /// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,
 ///                   query_s,query_total,keyframe_reason,kl,focal` for every processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
@@ -55,6 +59,7 @@ class OutputStage {
   File trajectory_;
   File keyframes_;
   File ground_truth_;  // true poses of the frames whose source knew them
+  File anchors_;       // tracked frames relative to their anchor keyframe
   File frames_csv_;
   File latency_csv_;
   std::uint64_t frames_ = 0;
@@ -63,5 +68,8 @@ class OutputStage {
 
 /// Formats a pose line in TUM format into `buf` (no allocation); returns its length.
 int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c);
+/// Formats a frame_anchors.txt line (`anchor_t_ns` null: no anchor, `T` is T_w_c).
+int format_anchor_line(char* buf, std::size_t size, std::int64_t t_ns,
+                       const std::int64_t* anchor_t_ns, const SE3d& T);
 
 }  // namespace mer::pipeline

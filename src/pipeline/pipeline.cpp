@@ -222,26 +222,35 @@ Status Pipeline::run() {
   return c.is_ok() ? k : c;
 }
 
-Status Pipeline::write_final_keyframes() const {
-  if (output_dir_.empty()) return Status::ok();
+std::vector<StampedPose> Pipeline::live_keyframe_poses() const {
   // Every stage has stopped: reading the map here races with nobody.
-  std::vector<std::pair<std::int64_t, SE3d>> poses;
+  std::vector<StampedPose> poses;
   const map::KeyframeId n = map_->num_keyframes();
   for (map::KeyframeId id = 0; id < n; ++id) {
     SE3d T;
     if (map_->keyframe_is_live(id) && map_->keyframe_pose(id, T)) {
-      poses.emplace_back(map_->keyframe_t_ns(id), T);
+      poses.push_back(StampedPose{map_->keyframe_t_ns(id), T});
     }
   }
   std::sort(poses.begin(), poses.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
+            [](const StampedPose& a, const StampedPose& b) { return a.t_ns < b.t_ns; });
+  return poses;
+}
+
+std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
+  return resolve_keyframe_poses(live_keyframe_poses(), culler_->lineage());
+}
+
+Status Pipeline::write_final_keyframes() const {
+  if (output_dir_.empty()) return Status::ok();
+  const std::vector<StampedPose> poses = live_keyframe_poses();
   const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));
   char line[256];
   bool ok = true;
-  for (const auto& [t_ns, T] : poses) {
-    const int len = format_tum_line(line, sizeof line, t_ns, T);
+  for (const StampedPose& p : poses) {
+    const int len = format_tum_line(line, sizeof line, p.t_ns, p.T_w_c);
     ok = ok && len > 0 &&
          std::fwrite(line, 1, static_cast<std::size_t>(len), f) == static_cast<std::size_t>(len);
   }
@@ -273,27 +282,9 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
 
 void Pipeline::run_final_ba() {
   // Every stage has stopped: this thread is the map's only writer now.
-  // Live keyframes in time order (slots are reused, so ids are not).
   FinalBaStats& f = stats_.final_ba;
-  std::vector<map::KeyframeId> live;
-  const map::KeyframeId n = map_->num_keyframes();
-  for (map::KeyframeId id = 0; id < n; ++id) {
-    if (map_->keyframe_is_live(id)) live.push_back(id);
-  }
-  std::sort(live.begin(), live.end(), [&](map::KeyframeId a, map::KeyframeId b) {
-    return map_->keyframe_t_ns(a) < map_->keyframe_t_ns(b);
-  });
-  f.corrections.resize(live.size());
-  for (std::size_t i = 0; i < live.size(); ++i) {
-    f.corrections[i].t_ns = map_->keyframe_t_ns(live[i]);
-    (void)map_->keyframe_pose(live[i], f.corrections[i].T_w_c_before);
-  }
   const backend::LocalBaReport rep =
       ba_->optimize_full(tracker_->intrinsics(), config_.backend.full_max_iterations);
-  for (std::size_t i = 0; i < live.size(); ++i) {
-    f.corrections[i].T_w_c_after = f.corrections[i].T_w_c_before;
-    (void)map_->keyframe_pose(live[i], f.corrections[i].T_w_c_after);
-  }
   f.ran = rep.ran;
   f.keyframes = rep.keyframes;
   f.points = rep.points;

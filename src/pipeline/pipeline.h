@@ -45,6 +45,7 @@
 #include "hal/camera.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
+#include "pipeline/final_trajectory.h"
 #include "pipeline/output_stage.h"
 #include "pipeline/pipeline_options.h"
 #include "platform/latency_recorder.h"
@@ -107,13 +108,6 @@ struct ThreadPlacement {
   std::string note;      ///< why not, when not
 };
 
-/// A keyframe pose before and after the full-graph optimization (pipeline.final_ba).
-struct KeyframeCorrection {
-  std::int64_t t_ns = 0;
-  SE3d T_w_c_before = SE3d::Identity();
-  SE3d T_w_c_after = SE3d::Identity();
-};
-
 /// What the full-graph optimization after the stream did.
 struct FinalBaStats {
   bool ran = false;
@@ -122,7 +116,6 @@ struct FinalBaStats {
   int observations = 0;
   int iterations = 0;
   double ms = 0.0;
-  std::vector<KeyframeCorrection> corrections;  ///< one per keyframe, in id order
 };
 
 /// Counters and summaries of one run.
@@ -180,6 +173,9 @@ class Pipeline {
 
   /// Counters and latency summaries (complete after run()).
   const PipelineStats& stats() const { return stats_; }
+  /// After run(): every keyframe's pose in the final map, the removed ones through their
+  /// lineage (final_trajectory.h), sorted by time.
+  std::vector<FinalKeyframePose> final_keyframe_poses() const;
 
  private:
   Status run_lockstep();
@@ -189,6 +185,8 @@ class Pipeline {
   /// Writes `output_dir`/keyframes_final.txt: the live keyframes' poses in the final map
   /// (after local BA and the final BA), in time order.
   Status write_final_keyframes() const;
+  /// Live keyframes' poses, sorted by time (after run()).
+  std::vector<StampedPose> live_keyframe_poses() const;
   std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;

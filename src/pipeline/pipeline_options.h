@@ -24,7 +24,7 @@ struct PipelineOptions {
   int acquire_timeout_ms = 1000;  ///< wait for a frame this long before retrying
   int source_timeout_ms = 10000;  ///< no frame for this long ends the run (source_error)
   std::string focal = "fixed";    ///< fixed: use calibration; auto: estimate the focal length
-  bool final_ba = false;          ///< after the stream: full-graph BA, trajectory_final_ba.txt
+  bool final_ba = false;          ///< after the stream: full-graph BA (offline, unbounded)
 
   template <class V>
   void visit(V& v) {
@@ -41,8 +41,8 @@ struct PipelineOptions {
     v.field("focal", focal, "focal length: fixed (calibrated) or auto (estimated)",
             options::OneOf{kFocalModes});
     v.field("final_ba", final_ba,
-            "after the stream ends, optimize the whole graph (all keyframes and points) and "
-            "write trajectory_final_ba.txt (every frame re-anchored to its keyframe)");
+            "after the stream ends, optimize the whole graph (all keyframes and points); "
+            "keyframes_final.txt and trajectory_final.txt then carry its result");
   }
 };
 

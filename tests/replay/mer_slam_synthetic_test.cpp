@@ -64,8 +64,9 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
 }
 
 // --final-ba: the whole graph is optimized after the stream; trajectory.txt stays what
-// tracking wrote (byte-identical to a run without the flag) and trajectory_final_ba.txt has
-// every frame, scored in summary.json.
+// tracking wrote (byte-identical to a run without the flag). Every run writes
+// trajectory_final.txt: every tracked frame re-anchored to the final map (the final BA's
+// when it ran), scored in summary.json.
 TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
   const auto plain = fresh_dir("mer_e2e_final_ba_plain");
   const auto ba = fresh_dir("mer_e2e_final_ba");
@@ -76,17 +77,30 @@ TEST(MerSlamSynthetic, FinalBaWritesItsOwnTrajectoryAndScoresIt) {
   }
   EXPECT_EQ(read_text((plain / "trajectory.txt").string()),
             read_text((ba / "trajectory.txt").string()));
-  EXPECT_FALSE(std::filesystem::exists(plain / "trajectory_final_ba.txt"));
-  EXPECT_EQ(count_lines((ba / "trajectory_final_ba.txt").string()), 120);
   cv::FileStorage s = open_summary(ba);
   ASSERT_TRUE(s.isOpened());
   EXPECT_GE(static_cast<int>(s["final_ba"]["keyframes"]), 2);
   EXPECT_GT(static_cast<int>(s["final_ba"]["observations"]), 0);
-  const double ate = static_cast<double>(s["accuracy_final_ba"]["ate_rmse_m"]);
-  EXPECT_GT(ate, 0.0);
-  EXPECT_LT(ate, 0.02) << "RGB-D synthetic after final BA (the run itself is ~5 mm)";
   cv::FileStorage sp = open_summary(plain);
   EXPECT_TRUE(sp["final_ba"].empty());
+  for (auto* fs : {&s, &sp}) {
+    const int tracked = static_cast<int>((*fs)["accuracy"]["pairs"]);
+    EXPECT_GT(tracked, 100);
+    EXPECT_EQ(static_cast<int>((*fs)["final_trajectory"]["frames"]), tracked);
+    EXPECT_EQ(static_cast<int>((*fs)["final_trajectory"]["reanchored"]), tracked)
+        << "the initialization keyframe is in the map before its frame's result";
+    EXPECT_EQ(static_cast<int>((*fs)["final_trajectory"]["unresolved"]), 0);
+    EXPECT_EQ(static_cast<int>((*fs)["accuracy_final"]["pairs"]), tracked);
+    const double ate = static_cast<double>((*fs)["accuracy_final"]["ate_rmse_m"]);
+    EXPECT_GT(ate, 0.0);
+    EXPECT_LT(ate, 0.02) << "RGB-D synthetic (the run itself is ~5 mm)";
+  }
+  for (const auto& d : {plain, ba}) {
+    EXPECT_EQ(count_lines((d / "trajectory_final.txt").string()),
+              count_lines((d / "trajectory.txt").string()));
+    EXPECT_EQ(count_lines((d / "frame_anchors.txt").string()),
+              count_lines((d / "trajectory.txt").string()));
+  }
   // keyframes_final.txt: one line per live keyframe of the final map, each at a keyframe's
   // time, scored in accuracy_keyframes.
   for (auto* fs : {&s, &sp}) {

@@ -71,22 +71,31 @@ map::PointId add_point(map::Map& m, const std::vector<map::KeyframeId>& views, s
   return r.value();
 }
 
-TEST(MapCulling, RedundantKeyframesAreRemovedButNotTheAnchorNorTheNewest) {
-  map::Map m(map_options(16, 200));
-  std::vector<map::KeyframeId> k;
+// Eight keyframes: points 0-9 seen by k0..k4 and k7 (returned), points 10-19 by k2 and k6
+// only. With redundancy_options(), one pass removes k1, k3 and k4.
+std::vector<map::PointId> redundant_map(map::Map& m, std::vector<map::KeyframeId>& k) {
   for (int i = 0; i < 8; ++i) k.push_back(add_kf(m));
-  // Points 0-9 seen by k0..k4 and k7; points 10-19 seen by k2 and k6 only.
   std::vector<map::PointId> shared;
   for (std::uint32_t i = 0; i < 10; ++i)
     shared.push_back(add_point(m, {k[0], k[1], k[2], k[3], k[4], k[7]}, i));
   for (std::uint32_t i = 10; i < 20; ++i) add_point(m, {k[2], k[6]}, i);
   for (const map::KeyframeId kf : k) m.update_covisibility(kf);
+  return shared;
+}
 
+CullingOptions redundancy_options() {
   CullingOptions o = rules_off();
   o.keyframe_redundancy = 0.9;
   o.keep_newest_keyframes = 3;  // serials 5, 6, 7
   o.point_min_observations = 2;
-  MapCuller c(o, m);
+  return o;
+}
+
+TEST(MapCulling, RedundantKeyframesAreRemovedButNotTheAnchorNorTheNewest) {
+  map::Map m(map_options(16, 200));
+  std::vector<map::KeyframeId> k;
+  const std::vector<map::PointId> shared = redundant_map(m, k);
+  MapCuller c(redundancy_options(), m);
   EXPECT_DOUBLE_EQ(c.redundancy(k[1]), 1.0);
   EXPECT_DOUBLE_EQ(c.redundancy(k[2]), 0.5);
   const CullingReport rep = c.spin_once(k[7]);
@@ -101,8 +110,35 @@ TEST(MapCulling, RedundantKeyframesAreRemovedButNotTheAnchorNorTheNewest) {
   EXPECT_EQ(rep.orphaned_points, 0);
   for (const map::PointId p : shared) EXPECT_EQ(m.point_num_observations(p), 3u);
   EXPECT_EQ(c.totals().culled_keyframes, 3u);
+  // Each removed keyframe keeps its pose relative to a keyframe that was live then (keyframe
+  // i sits at x = 0.1 i, stamped 1000 i ns), for the re-anchored trajectory.
+  ASSERT_EQ(c.lineage().size(), 3U);
+  for (const CulledKeyframe& rec : c.lineage()) {
+    EXPECT_TRUE(rec.t_ns == 1000 || rec.t_ns == 3000 || rec.t_ns == 4000) << rec.t_ns;
+    EXPECT_NE(rec.parent_t_ns, rec.t_ns);
+    const double x_parent = 0.1 * static_cast<double>(rec.parent_t_ns / 1000);
+    EXPECT_NEAR(x_parent + rec.T_parent_kf.translation().x(),
+                0.1 * static_cast<double>(rec.t_ns / 1000), 1e-12);
+    EXPECT_TRUE(rec.T_parent_kf.linear().isIdentity(1e-12));
+  }
   // A second pass finds nothing more to remove.
   EXPECT_EQ(c.spin_once(k[7]).culled_keyframes, 0);
+  EXPECT_EQ(c.lineage().size(), 3U);
+}
+
+TEST(MapCulling, LineageIsABoundedRing) {
+  map::Map m(map_options(16, 200));
+  std::vector<map::KeyframeId> k;
+  (void)redundant_map(m, k);
+  CullingOptions o = redundancy_options();
+  o.lineage_capacity = 2;
+  MapCuller c(o, m);
+  EXPECT_EQ(c.spin_once(k[7]).culled_keyframes, 3);
+  EXPECT_EQ(c.lineage().size(), 2U) << "the oldest record is forgotten";
+  o.lineage_capacity = 0;
+  map::Map m2(map_options(16, 200));
+  MapCuller off(o, m2);
+  EXPECT_TRUE(off.lineage().empty());
 }
 
 TEST(MapCulling, RedundancyCountsOnlyObservationsAtTheSameOrAFinerScale) {
@@ -256,7 +292,7 @@ TEST(MapCulling, EveryOptionHasADocLineAndRange) {
   testing::DocCheck v;
   CullingOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 11);
+  EXPECT_EQ(v.fields, 12);
 }
 
 }  // namespace

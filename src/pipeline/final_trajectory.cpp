@@ -1,0 +1,75 @@
+#include "pipeline/final_trajectory.h"
+
+#include <algorithm>
+#include <unordered_map>
+
+namespace mer::pipeline {
+
+std::vector<FinalKeyframePose> resolve_keyframe_poses(
+    std::span<const StampedPose> live, std::span<const backend::CulledKeyframe> lineage) {
+  std::unordered_map<std::int64_t, FinalKeyframePose> known;
+  known.reserve(live.size() + lineage.size());
+  for (const StampedPose& p : live) known.emplace(p.t_ns, FinalKeyframePose{p.t_ns, p.T_w_c});
+  std::unordered_map<std::int64_t, const backend::CulledKeyframe*> parent_of;
+  parent_of.reserve(lineage.size());
+  for (const backend::CulledKeyframe& c : lineage) parent_of.emplace(c.t_ns, &c);
+
+  // Walk each removed keyframe up its lineage to a known pose, then compose back down.
+  // A chain is at most lineage.size() long (each record names a keyframe that was live
+  // when its child was removed, so there is no cycle; the bound guards a corrupt input).
+  std::vector<const backend::CulledKeyframe*> chain;
+  for (const backend::CulledKeyframe& c : lineage) {
+    if (known.contains(c.t_ns)) continue;
+    chain.clear();
+    const backend::CulledKeyframe* at = &c;
+    while (at != nullptr && !known.contains(at->parent_t_ns) && chain.size() < lineage.size()) {
+      chain.push_back(at);
+      const auto it = parent_of.find(at->parent_t_ns);
+      at = it == parent_of.end() ? nullptr : it->second;
+    }
+    if (at == nullptr || !known.contains(at->parent_t_ns)) continue;  // lineage forgotten
+    chain.push_back(at);
+    for (auto it = chain.rbegin(); it != chain.rend(); ++it) {
+      const FinalKeyframePose& parent = known.at((*it)->parent_t_ns);
+      known.emplace((*it)->t_ns,
+                    FinalKeyframePose{(*it)->t_ns, parent.T_w_c * (*it)->T_parent_kf, true});
+    }
+  }
+  std::vector<FinalKeyframePose> out;
+  out.reserve(known.size());
+  for (const auto& kv : known) out.push_back(kv.second);
+  std::sort(out.begin(), out.end(),
+            [](const FinalKeyframePose& a, const FinalKeyframePose& b) { return a.t_ns < b.t_ns; });
+  return out;
+}
+
+std::vector<StampedPose> reanchor_frames(std::span<const AnchoredFrame> frames,
+                                         std::span<const FinalKeyframePose> keyframes,
+                                         FinalTrajectoryStats& stats) {
+  auto find_kf = [&](std::int64_t t) -> const FinalKeyframePose* {
+    const auto it =
+        std::lower_bound(keyframes.begin(), keyframes.end(), t,
+                         [](const FinalKeyframePose& k, std::int64_t x) { return k.t_ns < x; });
+    return it != keyframes.end() && it->t_ns == t ? &*it : nullptr;
+  };
+  std::vector<StampedPose> out;
+  out.reserve(frames.size());
+  SE3d correction = SE3d::Identity();  // final pose * tracked pose^-1 of the last anchored frame
+  for (const AnchoredFrame& f : frames) {
+    const FinalKeyframePose* kf = f.has_anchor ? find_kf(f.anchor_t_ns) : nullptr;
+    SE3d T = correction * f.T_w_c;
+    if (kf != nullptr) {
+      T = kf->T_w_c * f.T_kf_c;
+      correction = T * f.T_w_c.inverse();
+      ++stats.reanchored;
+      if (kf->from_lineage) ++stats.via_lineage;
+    } else {
+      ++stats.unresolved;
+    }
+    out.push_back(StampedPose{f.t_ns, T});
+    ++stats.frames;
+  }
+  return out;
+}
+
+}  // namespace mer::pipeline

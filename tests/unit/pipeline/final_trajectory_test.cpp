@@ -1,0 +1,73 @@
+#include "pipeline/final_trajectory.h"
+
+#include <vector>
+
+#include <gtest/gtest.h>
+
+namespace mer::pipeline {
+namespace {
+
+SE3d pose(double yaw, double x, double y, double z) {
+  return make_se3(Eigen::Quaterniond(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ())),
+                  Eigen::Vector3d(x, y, z));
+}
+
+void expect_near(const SE3d& a, const SE3d& b) {
+  EXPECT_LT((a.matrix() - b.matrix()).norm(), 1e-12) << a.matrix() << "\nvs\n" << b.matrix();
+}
+
+// Removed keyframes reach the final map through their parents, even when the parent was
+// removed later too; a record whose chain ends at a keyframe that is not known is dropped.
+TEST(FinalTrajectory, LineageChainsResolveToLiveKeyframes) {
+  const SE3d T_w_a = pose(0.3, 1.0, 2.0, 0.5);
+  const std::vector<StampedPose> live{{400, pose(0.0, 4.0, 0.0, 0.0)}, {100, T_w_a}};
+  const SE3d T_a_b = pose(0.1, 0.2, 0.0, 0.0);
+  const SE3d T_b_c = pose(-0.2, 0.0, 0.3, 0.0);
+  const std::vector<backend::CulledKeyframe> lineage{
+      {300, 200, T_b_c},                      // c's parent b was removed after c
+      {200, 100, T_a_b},                      // b's parent a is live
+      {500, 999, pose(0.0, 1.0, 1.0, 1.0)}};  // parent 999 forgotten
+  const std::vector<FinalKeyframePose> kfs = resolve_keyframe_poses(live, lineage);
+  ASSERT_EQ(kfs.size(), 4U);
+  EXPECT_EQ(kfs[0].t_ns, 100);
+  EXPECT_EQ(kfs[1].t_ns, 200);
+  EXPECT_EQ(kfs[2].t_ns, 300);
+  EXPECT_EQ(kfs[3].t_ns, 400);
+  EXPECT_FALSE(kfs[0].from_lineage);
+  EXPECT_TRUE(kfs[1].from_lineage);
+  EXPECT_TRUE(kfs[2].from_lineage);
+  EXPECT_FALSE(kfs[3].from_lineage);
+  expect_near(kfs[1].T_w_c, T_w_a * T_a_b);
+  expect_near(kfs[2].T_w_c, T_w_a * T_a_b * T_b_c);
+}
+
+// A frame lands where its keyframe's final pose puts it; a frame without a resolvable
+// keyframe moves with the previous frame's correction, and a frame before any anchored one
+// stays as tracked.
+TEST(FinalTrajectory, FramesFollowTheirKeyframeOrThePreviousCorrection) {
+  const SE3d T_w_kf_final = pose(0.5, 3.0, -1.0, 0.2);
+  const std::vector<FinalKeyframePose> kfs{{100, T_w_kf_final, false}};
+  const SE3d T_kf_c = pose(0.05, 0.1, 0.0, 0.02);
+  const SE3d T_w_kf_tracked = pose(0.4, 2.9, -1.1, 0.2);
+  std::vector<AnchoredFrame> frames(4);
+  frames[0] = {50, pose(0.0, 0.1, 0.2, 0.3), false, 0, SE3d::Identity()};
+  frames[1] = {150, T_w_kf_tracked * T_kf_c, true, 100, T_kf_c};
+  frames[2] = {160, pose(0.45, 3.0, -1.0, 0.2), true, 777, SE3d::Identity()};  // unknown kf
+  frames[3] = {170, pose(0.46, 3.1, -1.0, 0.2), false, 0, SE3d::Identity()};
+  FinalTrajectoryStats st;
+  const std::vector<StampedPose> out = reanchor_frames(frames, kfs, st);
+  ASSERT_EQ(out.size(), 4U);
+  EXPECT_EQ(st.frames, 4U);
+  EXPECT_EQ(st.reanchored, 1U);
+  EXPECT_EQ(st.unresolved, 3U);
+  EXPECT_EQ(st.via_lineage, 0U);
+  expect_near(out[0].T_w_c, frames[0].T_w_c);
+  expect_near(out[1].T_w_c, T_w_kf_final * T_kf_c);
+  const SE3d correction = out[1].T_w_c * frames[1].T_w_c.inverse();
+  expect_near(out[2].T_w_c, correction * frames[2].T_w_c);
+  expect_near(out[3].T_w_c, correction * frames[3].T_w_c);
+  for (std::size_t i = 0; i < out.size(); ++i) EXPECT_EQ(out[i].t_ns, frames[i].t_ns);
+}
+
+}  // namespace
+}  // namespace mer::pipeline
