@@ -48,7 +48,8 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
                     quote(d.string()));
     ASSERT_EQ(r.exit_code, 0) << r.output;
   }
-  for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv"}) {
+  for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv", "frame_anchors.txt",
+                        "keyframes_final.txt", "trajectory_final.txt"}) {
     const std::string fa = read_text((a / f).string());
     ASSERT_FALSE(fa.empty()) << f;
     EXPECT_EQ(fa, read_text((b / f).string())) << f << " differs between lockstep runs";
@@ -185,6 +186,13 @@ TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
   const double kf_off = static_cast<double>(so["accuracy_keyframes"]["ate_pct_of_path"]);
   EXPECT_LT(kf_on, 0.15) << "final-map keyframes, % of the path (0.100 measured)";
   EXPECT_LT(kf_on, 0.7 * kf_off) << "loop closure off: " << kf_off << " % (0.190 measured)";
+  // Every frame re-anchored to the corrected map: the loop's gain reaches the frames too,
+  // through keyframes culled on the way (their lineage).
+  const double tracked = static_cast<double>(s["accuracy"]["ate_pct_of_path"]);
+  const double reanchored = static_cast<double>(s["accuracy_final"]["ate_pct_of_path"]);
+  EXPECT_LT(reanchored, 0.8 * tracked) << "measured 0.145 vs 0.241 %";
+  EXPECT_GT(static_cast<int>(s["final_trajectory"]["via_lineage"]), 0);
+  EXPECT_EQ(static_cast<int>(s["final_trajectory"]["unresolved"]), 0);
 }
 
 // Culling keeps the map bounded: room_loop with 20 keyframe and 4000 point slots. Without
@@ -244,6 +252,11 @@ TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
   EXPECT_EQ(in, 60);
   EXPECT_EQ(processed + dropped, in) << "every frame is processed or counted as dropped";
   EXPECT_EQ(count_lines((d / "frames.csv").string()), processed + 1);
+  // Frames anchored by the tracking thread while the keyframe builder and back end change
+  // the map: every one resolves to a keyframe of the final map.
+  EXPECT_EQ(count_lines((d / "trajectory_final.txt").string()),
+            count_lines((d / "trajectory.txt").string()));
+  EXPECT_EQ(static_cast<int>(s["final_trajectory"]["unresolved"]), 0);
   for (const char* t : {"capture", "tracking"}) {
     EXPECT_EQ(static_cast<double>(s["allocs_per_frame"][t]), 0.0) << t;
     EXPECT_GT(static_cast<int>(s["steady_state_frames"][t]), 0) << t;
