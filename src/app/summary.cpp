@@ -110,7 +110,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   if (info.final_trajectory_written) {
     const pipeline::FinalTrajectoryStats& f = info.final_trajectory;
     j << "  \"final_trajectory\": {\"frames\": " << f.frames << ", \"reanchored\": " << f.reanchored
-      << ", \"via_lineage\": " << f.via_lineage << ", \"unresolved\": " << f.unresolved << "},\n";
+      << ", \"via_lineage\": " << f.via_lineage << ", \"interpolated\": " << f.interpolated
+      << ", \"unresolved\": " << f.unresolved << "},\n";
     accuracy_json("accuracy_final", info.accuracy_final);
     // Kept for readers of earlier summaries: the final BA's trajectory is trajectory_final.txt.
     if (st.final_ba.ran) accuracy_json("accuracy_final_ba", info.accuracy_final);

@@ -43,6 +43,19 @@ std::vector<FinalKeyframePose> resolve_keyframe_poses(
   return out;
 }
 
+namespace {
+
+/// D^alpha for a small SE(3) correction: rotation angle and translation scaled by alpha.
+SE3d fraction_of(const SE3d& D, double alpha) {
+  const Eigen::AngleAxisd aa(D.linear());
+  SE3d out = SE3d::Identity();
+  out.linear() = Eigen::AngleAxisd(alpha * aa.angle(), aa.axis()).toRotationMatrix();
+  out.translation() = alpha * D.translation();
+  return out;
+}
+
+}  // namespace
+
 std::vector<StampedPose> reanchor_frames(std::span<const AnchoredFrame> frames,
                                          std::span<const FinalKeyframePose> keyframes,
                                          FinalTrajectoryStats& stats) {
@@ -52,6 +65,18 @@ std::vector<StampedPose> reanchor_frames(std::span<const AnchoredFrame> frames,
                          [](const FinalKeyframePose& k, std::int64_t x) { return k.t_ns < x; });
     return it != keyframes.end() && it->t_ns == t ? &*it : nullptr;
   };
+  // The back end also moves an anchor's next keyframe B relative to it: D, in the anchor's
+  // frame, takes B's offset as tracked to B's final pose. A frame between the two gets the
+  // fraction of D its time is of the way to B (the whole of it past B), so the re-anchored
+  // trajectory runs on into B's final pose instead of jumping there.
+  std::unordered_map<std::int64_t, SE3d> to_next;  // anchor stamp -> D
+  for (const AnchoredFrame& f : frames) {
+    if (!f.has_anchor) continue;
+    const FinalKeyframePose* a = find_kf(f.anchor_t_ns);
+    const FinalKeyframePose* b = find_kf(f.t_ns);  // the frame that became keyframe B
+    if (a == nullptr || b == nullptr || b != a + 1) continue;
+    to_next.emplace(a->t_ns, a->T_w_c.inverse() * b->T_w_c * f.T_kf_c.inverse());
+  }
   std::vector<StampedPose> out;
   out.reserve(frames.size());
   SE3d correction = SE3d::Identity();  // final pose * tracked pose^-1 of the last anchored frame
@@ -59,7 +84,15 @@ std::vector<StampedPose> reanchor_frames(std::span<const AnchoredFrame> frames,
     const FinalKeyframePose* kf = f.has_anchor ? find_kf(f.anchor_t_ns) : nullptr;
     SE3d T = correction * f.T_w_c;
     if (kf != nullptr) {
-      T = kf->T_w_c * f.T_kf_c;
+      SE3d D = SE3d::Identity();
+      if (const auto it = to_next.find(kf->t_ns); it != to_next.end()) {
+        const std::int64_t span = (kf + 1)->t_ns - kf->t_ns;
+        const double alpha = std::clamp(
+            static_cast<double>(f.t_ns - kf->t_ns) / static_cast<double>(span), 0.0, 1.0);
+        D = fraction_of(it->second, alpha);
+        ++stats.interpolated;
+      }
+      T = kf->T_w_c * D * f.T_kf_c;
       correction = T * f.T_w_c.inverse();
       ++stats.reanchored;
       if (kf->from_lineage) ++stats.via_lineage;

@@ -7,7 +7,10 @@
 /// gains reach the per-frame trajectory through a re-anchoring after the run, as in
 /// ORB-SLAM's saved trajectories: each frame's pose relative to the keyframe it was tracked
 /// with (frame_anchors.txt, written by the output stage) is composed with that keyframe's
-/// final pose, T_w_c' = T_w_kf(final) T_kf_c.
+/// final pose, T_w_c' = T_w_kf(final) T_kf_c. The back end moves the next keyframe relative
+/// to that one too (D: from the next keyframe's offset as tracked to its final pose, in the
+/// keyframe's frame); a frame a fraction alpha of the way in time to the next keyframe gets
+/// D^alpha: T_w_c' = T_w_kf(final) D^alpha T_kf_c, which runs on into the next keyframe.
 ///
 /// Keyframes removed by culling are followed through their lineage: their pose relative to
 /// the live keyframe that shared most points with them when they were removed
@@ -48,10 +51,11 @@ struct AnchoredFrame {
 
 /// What the re-anchoring did (summary.json `final_trajectory`).
 struct FinalTrajectoryStats {
-  std::uint64_t frames = 0;       ///< frames written
-  std::uint64_t reanchored = 0;   ///< moved with their own keyframe
-  std::uint64_t via_lineage = 0;  ///< of these, through removed keyframes' lineage
-  std::uint64_t unresolved = 0;   ///< moved with the previous frame's correction (or kept)
+  std::uint64_t frames = 0;        ///< frames written
+  std::uint64_t reanchored = 0;    ///< moved with their own keyframe
+  std::uint64_t via_lineage = 0;   ///< of these, through removed keyframes' lineage
+  std::uint64_t interpolated = 0;  ///< of these, with a share of the next keyframe's correction
+  std::uint64_t unresolved = 0;    ///< moved with the previous frame's correction (or kept)
 };
 
 /// Final poses of the live keyframes (`live`, any order) and of the removed keyframes that

@@ -69,5 +69,33 @@ TEST(FinalTrajectory, FramesFollowTheirKeyframeOrThePreviousCorrection) {
   for (std::size_t i = 0; i < out.size(); ++i) EXPECT_EQ(out[i].t_ns, frames[i].t_ns);
 }
 
+// The back end moved keyframe B relative to its predecessor A after B's frame was tracked: the
+// frame that became B lands on B's final pose, and a frame half-way in time between them gets
+// half of that correction (rotation angle and translation).
+TEST(FinalTrajectory, FramesBetweenKeyframesShareTheNextKeyframesCorrection) {
+  const SE3d T_w_a = pose(0.2, 1.0, 0.0, 0.0);
+  const SE3d T_w_b = pose(0.3, 1.5, 0.1, 0.0);
+  const std::vector<FinalKeyframePose> kfs{{100, T_w_a, false}, {200, T_w_b, false}};
+  const SE3d T_a_b_tracked = pose(0.08, 0.45, 0.05, 0.0);  // tracking's view of B from A
+  const SE3d T_a_f = pose(0.04, 0.2, 0.02, 0.0);
+  std::vector<AnchoredFrame> frames(3);
+  frames[0] = {150, T_w_a * T_a_f, true, 100, T_a_f};
+  frames[1] = {200, T_w_a * T_a_b_tracked, true, 100, T_a_b_tracked};
+  frames[2] = {210, T_w_b * T_a_f, true, 200, T_a_f};  // anchored to B, which has no next
+  FinalTrajectoryStats st;
+  const std::vector<StampedPose> out = reanchor_frames(frames, kfs, st);
+  ASSERT_EQ(out.size(), 3U);
+  EXPECT_EQ(st.reanchored, 3U);
+  EXPECT_EQ(st.interpolated, 2U);
+  expect_near(out[1].T_w_c, T_w_b);
+  const SE3d D = T_w_a.inverse() * T_w_b * T_a_b_tracked.inverse();
+  const Eigen::AngleAxisd aa(D.linear());
+  SE3d half = SE3d::Identity();
+  half.linear() = Eigen::AngleAxisd(0.5 * aa.angle(), aa.axis()).toRotationMatrix();
+  half.translation() = 0.5 * D.translation();
+  expect_near(out[0].T_w_c, T_w_a * half * T_a_f);
+  expect_near(out[2].T_w_c, T_w_b * T_a_f);
+}
+
 }  // namespace
 }  // namespace mer::pipeline
