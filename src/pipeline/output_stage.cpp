@@ -25,28 +25,34 @@ int format_seconds(char* buf, std::size_t size, std::int64_t t_ns) {
   return std::snprintf(buf, size, "%s%llu.%09llu", negative ? "-" : "", mag / 1'000'000'000ULL,
                        mag % 1'000'000'000ULL);
 }
+
+// `<prefix> tx ty tz qx qy qz qw\n`, fixed formatting: deterministic; positions and
+// quaternions to 1e-9.
+int format_pose_line(char* buf, std::size_t size, const char* prefix, const SE3d& T) {
+  const Eigen::Quaterniond q(T.linear());
+  const Eigen::Vector3d& t = T.translation();
+  return std::snprintf(buf, size, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", prefix, t.x(), t.y(),
+                       t.z(), q.x(), q.y(), q.z(), q.w());
+}
 }  // namespace
 
 int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c) {
-  const Eigen::Quaterniond q(T_w_c.linear());
-  const Eigen::Vector3d& t = T_w_c.translation();
   char stamp[32];
   format_seconds(stamp, sizeof stamp, t_ns);
-  // Fixed formatting: deterministic; positions and quaternions to 1e-9.
-  return std::snprintf(buf, size, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", stamp, t.x(), t.y(),
-                       t.z(), q.x(), q.y(), q.z(), q.w());
+  return format_pose_line(buf, size, stamp, T_w_c);
 }
 
 int format_anchor_line(char* buf, std::size_t size, std::int64_t t_ns,
                        const std::int64_t* anchor_t_ns, const SE3d& T) {
-  const Eigen::Quaterniond q(T.linear());
-  const Eigen::Vector3d& t = T.translation();
-  char stamp[32];
-  char anchor[32] = "-";
-  format_seconds(stamp, sizeof stamp, t_ns);
-  if (anchor_t_ns != nullptr) format_seconds(anchor, sizeof anchor, *anchor_t_ns);
-  return std::snprintf(buf, size, "%s %s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", stamp, anchor,
-                       t.x(), t.y(), t.z(), q.x(), q.y(), q.z(), q.w());
+  char stamps[64];
+  const int n = format_seconds(stamps, sizeof stamps, t_ns);
+  if (anchor_t_ns == nullptr) {
+    std::snprintf(stamps + n, sizeof stamps - static_cast<std::size_t>(n), " -");
+  } else {
+    stamps[n] = ' ';
+    format_seconds(stamps + n + 1, sizeof stamps - static_cast<std::size_t>(n) - 1, *anchor_t_ns);
+  }
+  return format_pose_line(buf, size, stamps, T);
 }
 
 OutputStage::~OutputStage() {
