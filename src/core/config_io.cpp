@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <set>
 #include <sstream>
 
 namespace mer::options {
@@ -128,8 +129,16 @@ bool YamlReader::has_key(std::string_view key) const {
 
 void YamlReader::check_unknown_keys() {
   if (!status_.is_ok() || !node_.isMap()) return;
+  std::set<std::string> seen;
   for (const cv::FileNode& child : node_) {
     const std::string name = child.name();
+    // cv::FileStorage keeps both entries of a repeated key but lookups find the first only:
+    // the second (often a whole section pasted twice) would be ignored without a word.
+    if (!seen.insert(name).second) {
+      status_ = invalid_argument(file_ + ": key '" + prefix_ + name +
+                                 "': given twice at this level (merge the two)");
+      return;
+    }
     if (known_.count(name) == 0) {
       std::string known_list;
       for (const auto& k : known_) known_list += (known_list.empty() ? "" : ", ") + k;

@@ -97,6 +97,19 @@ TEST(Options, UnknownKeyIsAnError) {
   EXPECT_NE(s.message().find("unknown key"), std::string::npos) << s.message();
 }
 
+// A repeated key (a section pasted twice) is an error: only the first would be read.
+TEST(Options, RepeatedKeyIsAnError) {
+  Outer o;
+  Status s = options::load_yaml_string("c.yaml", "inner:\n  count: 2\ninner:\n  count: 3\n", o);
+  ASSERT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("c.yaml"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("'inner'"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("twice"), std::string::npos) << s.message();
+  s = options::load_yaml_string("c.yaml", "inner:\n  count: 2\n  count: 3\n", o);
+  ASSERT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("'inner.count'"), std::string::npos) << s.message();
+}
+
 TEST(Options, OneOfRejectsOtherWords) {
   Outer o;
   const Status s = options::load_yaml_string("c.yaml", "word: gamma\n", o);
