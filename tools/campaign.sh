@@ -1,0 +1,157 @@
+#!/usr/bin/env bash
+# Accuracy campaign: runs mer_slam in lockstep over several seeds of the synthetic scenes (and
+# the KITTI clips when ../shared/data has them) and prints one line per run plus a summary:
+# ATE of the tracked frames (trajectory.txt), of every frame re-anchored to the final map
+# (trajectory_final.txt) and of the final map's keyframes, each in % of the path length, the
+# re-anchored ATE in metres and the loops closed. Lockstep runs are deterministic: a change's effect is the difference
+# between two campaigns, run by run.
+#
+#   tools/campaign.sh [options] SET...
+#     SET: orbit   room_orbit mono, seeds 1-8
+#          loop    room_loop mono, seeds 1-5
+#          hall    hall_drive (KITTI-like: 10 Hz, 1241x376, 81.6 deg), 160 frames, seeds 1-6
+#          kitti   kitti_clip1, kitti_clip2 (skipped, and said so, without ../shared/data)
+#          robust  orbit and loop seeds under four small keyframe-policy changes besides the
+#                  default (tracking.keyframe.min_baseline_ratio 0.05 / 0.015, min_spread
+#                  0.40 / 0.50): counts the runs that diverge (re-anchored ATE above
+#                  --diverged %), which single runs do not show
+#   options:
+#     --bin PATH        mer_slam to run (default build/release/src/app/mer_slam)
+#     --config FILE     YAML added to every run's configuration; it must not contain the
+#                       sections the campaign sets (camera, and tracking for robust)
+#     --out DIR         where runs and results.txt go (default build/campaign)
+#     --jobs N          runs at once (default 2)
+#     --diverged PCT    a run above this re-anchored ATE counts as diverged (default 2.0)
+#     --keep            keep every run's output directory (default: summary.json only)
+#     --max-frames N    stop every run after N frames (a quick check of the campaign itself)
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+BIN="$ROOT/build/release/src/app/mer_slam"
+OUT="$ROOT/build/campaign"
+EXTRA=""
+JOBS=2
+DIVERGED=2.0
+KEEP=0
+MAX_FRAMES=()
+SHARED="$ROOT/../shared/data"
+
+usage() { sed -n '2,30p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
+die() { echo "campaign: $*" >&2; exit 2; }
+
+sets=()
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --bin) BIN="${2:?--bin needs a path}"; shift 2 ;;
+    --config) EXTRA="${2:?--config needs a file}"; shift 2 ;;
+    --out) OUT="${2:?--out needs a directory}"; shift 2 ;;
+    --jobs) JOBS="${2:?--jobs needs a number}"; shift 2 ;;
+    --diverged) DIVERGED="${2:?--diverged needs a number}"; shift 2 ;;
+    --keep) KEEP=1; shift ;;
+    --max-frames) MAX_FRAMES=(--max-frames "${2:?--max-frames needs a number}"); shift 2 ;;
+    -h|--help) usage 0 ;;
+    orbit|loop|hall|kitti|robust) sets+=("$1"); shift ;;
+    *) die "unknown argument '$1' (see --help)" ;;
+  esac
+done
+[ ${#sets[@]} -gt 0 ] || usage 2
+[ -x "$BIN" ] || die "no mer_slam at '$BIN' (tools/dev.sh build release, or --bin)"
+[ -z "$EXTRA" ] || [ -r "$EXTRA" ] || die "cannot read --config '$EXTRA'"
+[[ "$JOBS" =~ ^[1-9][0-9]*$ ]] || die "--jobs must be a positive integer, not '$JOBS'"
+[[ "$DIVERGED" =~ ^[0-9]+(\.[0-9]+)?$ ]] || die "--diverged must be a number, not '$DIVERGED'"
+mkdir -p "$OUT"
+RESULTS="$OUT/results.txt"
+: > "$RESULTS"
+
+# One run: NAME INPUT then the YAML text of its configuration on stdin.
+run_one() {
+  local name="$1" input="$2" dir="$OUT/$1"
+  rm -rf "$dir"
+  mkdir -p "$dir"
+  cat > "$dir/config.yaml"
+  if [ -n "$EXTRA" ]; then cat "$EXTRA" >> "$dir/config.yaml"; fi
+  if ! "$BIN" --input "$input" --lockstep --quiet --config "$dir/config.yaml" --output "$dir" \
+      "${MAX_FRAMES[@]}" > "$dir/log.txt" 2>&1; then
+    echo "$name failed: see $dir/log.txt" >> "$RESULTS"
+    return
+  fi
+  local s
+  s="$(cat "$dir/summary.json")"
+  field() {  # SECTION KEY: a number from summary.json's one-line SECTION object, or '-'
+    local v
+    v="$(sed -n "s/.*\"$1\": {[^}]*\"$2\": \([-0-9.eE+]*\).*/\1/p" <<< "$s" | head -n 1)"
+    echo "${v:--}"
+  }
+  printf '%-22s %9s %9s %9s %10s %6s\n' "$name" "$(field accuracy ate_pct_of_path)" \
+    "$(field accuracy_final ate_pct_of_path)" "$(field accuracy_keyframes ate_pct_of_path)" \
+    "$(field accuracy_final ate_rmse_m)" "$(field loop loops_closed)" >> "$RESULTS"
+  if [ "$KEEP" -eq 0 ]; then
+    find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml -delete
+  fi
+}
+
+running=0
+queue() {  # NAME INPUT YAML
+  printf '%b' "$3" | run_one "$1" "$2" &
+  running=$((running + 1))
+  if [ "$running" -ge "$JOBS" ]; then
+    wait -n || true
+    running=$((running - 1))
+  fi
+}
+
+seed_yaml() { printf 'camera:\n  synthetic:\n    seed: %s\n' "$1"; }
+hall_yaml() {
+  printf 'camera:\n  synthetic:\n    fps: 10\n    num_frames: 160\n    width: 1241\n'
+  printf '    height: 376\n    fov_x_deg: 81.6\n    seed: %s\n' "$1"
+}
+
+for set in "${sets[@]}"; do
+  case "$set" in
+    orbit) for s in 1 2 3 4 5 6 7 8; do queue "orbit_s$s" synthetic:room_orbit "$(seed_yaml $s)"; done ;;
+    loop) for s in 1 2 3 4 5; do queue "loop_s$s" synthetic:room_loop "$(seed_yaml $s)"; done ;;
+    hall) for s in 1 2 3 4 5 6; do queue "hall160_s$s" synthetic:hall_drive "$(hall_yaml $s)"; done ;;
+    kitti)
+      if [ -d "$SHARED/kitti_clip1" ]; then
+        for c in 1 2; do queue "kitti_clip$c" "kitti:$SHARED/kitti_clip$c" ""; done
+      else
+        echo "campaign: $SHARED/kitti_clip1 not found: kitti set skipped" >&2
+      fi
+      ;;
+    robust)
+      for p in "def:" "mbr05:min_baseline_ratio: 0.05" "mbr015:min_baseline_ratio: 0.015" \
+               "ms040:min_spread: 0.40" "ms050:min_spread: 0.50"; do
+        tag="${p%%:*}"
+        kv="${p#*:}"
+        policy=""
+        [ -z "$kv" ] || policy="tracking:\n  keyframe:\n    $kv\n"
+        for s in 1 2 3 4 5 6 7 8; do
+          queue "orbit_s${s}_$tag" synthetic:room_orbit "$(seed_yaml $s)\n$policy"
+        done
+        for s in 1 2 3 4 5; do
+          queue "loop_s${s}_$tag" synthetic:room_loop "$(seed_yaml $s)\n$policy"
+        done
+      done
+      ;;
+  esac
+done
+wait || true
+
+sort -o "$RESULTS" "$RESULTS"
+printf '%-22s %9s %9s %9s %10s %6s\n' run tracked% final% keyfr% final_m loops
+cat "$RESULTS"
+median="$(awk '$2 != "failed:" && $3 != "-" { print $3 }' "$RESULTS" | sort -g |
+  awk '{ v[NR] = $1 } END { if (NR > 0) print v[int((NR + 1) / 2)] }')"
+awk -v lim="$DIVERGED" -v median="$median" '
+  $2 == "failed:" { failed++; next }
+  $3 == "-" { unscored++; next }
+  { n++; if ($3 + 0 > lim) { div++; names = names " " $1 } else { ok++; lsum += log($3) } }
+  END {
+    if (n + unscored == 0) { print "no run finished"; exit 1 }
+    printf "runs %d, failed %d, without a re-anchored ATE %d, diverged (re-anchored ATE > %s %%) %d",
+           n + unscored, failed + 0, unscored + 0, lim, div + 0
+    if (n > 0) printf ", median re-anchored %s %%", median
+    if (ok > 0) printf ", geometric mean of the others %.3f %%", exp(lsum / ok)
+    printf "\n"
+    if (div > 0) print "diverged:" names
+  }' "$RESULTS"
