@@ -69,7 +69,8 @@ run_one() {
   rm -rf "$dir"
   mkdir -p "$dir"
   cat > "$dir/config.yaml"
-  if [ -n "$EXTRA" ]; then cat "$EXTRA" >> "$dir/config.yaml"; fi
+  # (the run's YAML may lack its final newline: command substitution drops it)
+  if [ -n "$EXTRA" ]; then printf '\n' >> "$dir/config.yaml" && cat "$EXTRA" >> "$dir/config.yaml"; fi
   if ! "$BIN" --input "$input" --lockstep --quiet --config "$dir/config.yaml" --output "$dir" \
       "${MAX_FRAMES[@]}" > "$dir/log.txt" 2>&1; then
     echo "$name failed: see $dir/log.txt" >> "$RESULTS"
