@@ -36,7 +36,7 @@ KEEP=0
 MAX_FRAMES=()
 SHARED="$ROOT/../shared/data"
 
-usage() { sed -n '2,30p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
+usage() { sed -n '2,/^[^#]/{/^#/s/^# \{0,1\}//p}' "${BASH_SOURCE[0]}"; exit "${1:-2}"; }
 die() { echo "campaign: $*" >&2; exit 2; }
 
 sets=()
