@@ -30,6 +30,8 @@ constexpr std::uint64_t kConsistencyWindowKeyframes = 3;
 constexpr std::size_t kMaxLoopEdges = 4096;
 /// A Sim(3) fit's scale outside [1/k, k] is not drift, it is a wrong match.
 constexpr double kMaxLoopScale = 2.0;
+/// Refits of a loop similarity on its inliers before the inlier set is taken as settled.
+constexpr int kRefitRounds = 3;
 
 double elapsed_ms(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -128,8 +130,10 @@ LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float
       rng_(static_cast<std::uint32_t>(opts.seed)) {
   const auto nk = static_cast<std::size_t>(map.options().max_keypoints_per_keyframe);
   matches_.reserve(nk);
+  best_matches_.reserve(nk);
   loop_edges_.reserve(kMaxLoopEdges);
   inlier_.reserve(nk);
+  best_inlier_.reserve(nk);
   x_new_.reserve(nk);
   x_old_.reserve(nk);
 }
@@ -257,21 +261,39 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     ranked.resize(static_cast<std::size_t>(opts_.max_candidates));
   }
 
-  // 2. Geometric check.
+  // 2. Geometric check of every candidate; the one whose similarity explains the most
+  //    matches wins (the first to pass may be a weaker hypothesis of a neighbouring place,
+  //    made to pass by the guided search).
+  struct Best {
+    map::KeyframeId cand = map::kNoId;
+    int matches = 0;
+    int inliers = 0;
+    Sim3d sim;  ///< S_cand_new
+  };
+  Best best;
   for (const Candidate& c : ranked) {
     const map::KeyframeId cand = c.id;
     ++rep.candidates;
     ++totals_.candidates_checked;
-    const int m = match_points(kf, cand);
+    int m = match_points(kf, cand);
     MER_LOG_DEBUG("loop: keyframe %llu vs %llu: %s %.1f, %d point matches",
                   static_cast<unsigned long long>(map_.keyframe_seq(kf)),
                   static_cast<unsigned long long>(map_.keyframe_seq(cand)),
                   c.covisible ? "shared points" : "key score", c.score, m);
     if (m < opts_.min_matches) continue;
     Sim3d S_cand_new;
-    const int inliers = ransac_sim3(kf, cand, K, S_cand_new);
+    int inliers = ransac_sim3(kf, cand, K, S_cand_new);
     MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
-    if (inliers < opts_.min_inliers) continue;
+    if (opts_.guided_min_inliers > 0 && inliers >= opts_.guided_min_inliers) {
+      const int added = guided_matches(kf, cand, S_cand_new, K);
+      if (added > 0) {
+        inliers = refit_sim3(kf, K, S_cand_new);
+        m = static_cast<int>(matches_.size());
+      }
+      MER_LOG_DEBUG("loop: guided search: %d more matches, %d of %d agree (scale %.3f)", added,
+                    inliers, m, S_cand_new.s);
+    }
+    if (inliers < opts_.min_inliers || inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
     // travelled since the old one (perceptual aliasing: a similar place far away).
     const double drift = implied_drift(kf, cand, S_cand_new);
@@ -280,6 +302,13 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       ++rep.refused_drift;
       continue;
     }
+    best = Best{cand, m, inliers, S_cand_new};
+    best_matches_.swap(matches_);
+    best_inlier_.swap(inlier_);
+    best_old_views_.swap(old_views_);
+  }
+  if (best.cand != map::kNoId) {
+    const map::KeyframeId cand = best.cand;
     // Consistency: the loop must be seen again by the next keyframes, on the same old place
     // (the candidate or a keyframe covisible with it), before the map is corrected. A place
     // that only looks like an old one rarely does so twice in a row.
@@ -292,16 +321,18 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     if (agreeing < opts_.consistent_checks) {
       pending_ = Pending{cand, serial, agreeing};
       ++rep.pending;
-      break;
+    } else {
+      pending_ = Pending{};
+      matches_.swap(best_matches_);
+      inlier_.swap(best_inlier_);
+      old_views_.swap(best_old_views_);
+      rep.matches = best.matches;
+      rep.inliers = best.inliers;
+      rep.loop_keyframe = cand;
+      rep.loop_seq = map_.keyframe_seq(cand);
+      rep.merged_points = correct(kf, cand, best.sim, K, rep);
+      rep.closed = true;
     }
-    pending_ = Pending{};
-    rep.matches = m;
-    rep.inliers = inliers;
-    rep.loop_keyframe = cand;
-    rep.loop_seq = map_.keyframe_seq(cand);
-    rep.merged_points = correct(kf, cand, S_cand_new, K, rep);
-    rep.closed = true;
-    break;
   }
   rep.ms = elapsed_ms(t0);
   lock.unlock();
@@ -448,14 +479,12 @@ int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
   return static_cast<int>(matches_.size());
 }
 
-int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
-                            Sim3d& S_cand_new) {
+bool LoopCloser::match_positions(map::KeyframeId kf, map::KeyframeId cand) {
   SE3d T_w_new;
   SE3d T_w_old;
-  if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_old)) return 0;
+  if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_old)) return false;
   const SE3d T_new_w = T_w_new.inverse();
   const SE3d T_old_w = T_w_old.inverse();
-  const auto kps_new = map_.keyframe_keypoints(kf);
   x_new_.clear();
   x_old_.clear();
   std::erase_if(matches_, [&](const Match& m) {
@@ -469,45 +498,85 @@ int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geom
     x_old_.push_back(xb);
     return false;
   });
+  return true;
+}
+
+int LoopCloser::count_sim3_inliers(map::KeyframeId kf, const Sim3d& S_cand_new,
+                                   const geometry::Pinhole& K,
+                                   std::vector<std::uint8_t>* mask) const {
+  const auto kps_new = map_.keyframe_keypoints(kf);
+  const Sim3d S_inv = S_cand_new.inverse();
+  int count = 0;
+  for (std::size_t i = 0; i < matches_.size(); ++i) {
+    const Eigen::Vector3d a = S_cand_new * x_new_[i];  // in the old camera
+    const Eigen::Vector3d b = S_inv * x_old_[i];       // in the new camera
+    bool ok = a.z() > 0.0 && b.z() > 0.0;
+    if (ok) {
+      const OldView& view = old_views_[matches_[i].old_view];
+      const features::Keypoint& ko = map_.keyframe_keypoints(view.kf)[matches_[i].kp_old];
+      const features::Keypoint& kn = kps_new[matches_[i].kp_new];
+      const Eigen::Vector3d av = view.T_view_cand * a;
+      const double eo =
+          av.z() <= 0.0 ? std::numeric_limits<double>::infinity()
+                        : (K.project(av) - Eigen::Vector2d(ko.x, ko.y)).squaredNorm() / sigma2(ko);
+      const double en = (K.project(b) - Eigen::Vector2d(kn.x, kn.y)).squaredNorm() / sigma2(kn);
+      ok = eo < opts_.inlier_chi2 && en < opts_.inlier_chi2;
+    }
+    if (mask != nullptr) (*mask)[i] = ok ? 1 : 0;
+    count += ok ? 1 : 0;
+  }
+  return count;
+}
+
+namespace {
+
+Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eigen::Vector3d>& x_old,
+               const std::vector<std::size_t>& idx, bool metric) {
+  Eigen::Matrix3Xd src(3, static_cast<Eigen::Index>(idx.size()));
+  Eigen::Matrix3Xd dst(3, static_cast<Eigen::Index>(idx.size()));
+  for (std::size_t k = 0; k < idx.size(); ++k) {
+    src.col(static_cast<Eigen::Index>(k)) = x_new[idx[k]];
+    dst.col(static_cast<Eigen::Index>(k)) = x_old[idx[k]];
+  }
+  return geometry::umeyama_sim3(src, dst, !metric);
+}
+
+bool plausible_sim3(const Sim3d& S) {
+  return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
+         S.R.allFinite() && S.t.allFinite();
+}
+
+}  // namespace
+
+int LoopCloser::refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, Sim3d& S_cand_new) {
+  const std::size_t n = matches_.size();
+  inlier_.assign(n, 0);
+  int best = count_sim3_inliers(kf, S_cand_new, K, &inlier_);
+  for (int round = 0; round < kRefitRounds; ++round) {
+    std::vector<std::size_t> idx;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (inlier_[i]) idx.push_back(i);
+    }
+    if (idx.size() < 3) break;
+    const Sim3d S = fit_sim3(x_new_, x_old_, idx, metric_);
+    if (!plausible_sim3(S)) break;
+    std::vector<std::uint8_t> mask(n, 0);
+    const int c = count_sim3_inliers(kf, S, K, &mask);
+    if (c < best) break;
+    best = c;
+    S_cand_new = S;
+    const bool same = mask == inlier_;
+    inlier_.swap(mask);
+    if (same) break;
+  }
+  return best;  // inlier_ describes S_cand_new (a refit that lost inliers was not taken)
+}
+
+int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
+                            Sim3d& S_cand_new) {
+  if (!match_positions(kf, cand)) return 0;
   const std::size_t n = matches_.size();
   if (n < 3) return 0;
-  auto count_inliers = [&](const Sim3d& S, std::vector<std::uint8_t>* mask) {
-    const Sim3d S_inv = S.inverse();
-    int count = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-      const Eigen::Vector3d a = S * x_new_[i];      // in the old camera
-      const Eigen::Vector3d b = S_inv * x_old_[i];  // in the new camera
-      bool ok = a.z() > 0.0 && b.z() > 0.0;
-      if (ok) {
-        const OldView& view = old_views_[matches_[i].old_view];
-        const features::Keypoint& ko = map_.keyframe_keypoints(view.kf)[matches_[i].kp_old];
-        const features::Keypoint& kn = kps_new[matches_[i].kp_new];
-        const Eigen::Vector3d av = view.T_view_cand * a;
-        const double eo =
-            av.z() <= 0.0
-                ? std::numeric_limits<double>::infinity()
-                : (K.project(av) - Eigen::Vector2d(ko.x, ko.y)).squaredNorm() / sigma2(ko);
-        const double en = (K.project(b) - Eigen::Vector2d(kn.x, kn.y)).squaredNorm() / sigma2(kn);
-        ok = eo < opts_.inlier_chi2 && en < opts_.inlier_chi2;
-      }
-      if (mask != nullptr) (*mask)[i] = ok ? 1 : 0;
-      count += ok ? 1 : 0;
-    }
-    return count;
-  };
-  auto fit = [&](const std::vector<std::size_t>& idx) {
-    Eigen::Matrix3Xd src(3, static_cast<Eigen::Index>(idx.size()));
-    Eigen::Matrix3Xd dst(3, static_cast<Eigen::Index>(idx.size()));
-    for (std::size_t k = 0; k < idx.size(); ++k) {
-      src.col(static_cast<Eigen::Index>(k)) = x_new_[idx[k]];
-      dst.col(static_cast<Eigen::Index>(k)) = x_old_[idx[k]];
-    }
-    return geometry::umeyama_sim3(src, dst, !metric_);
-  };
-  auto plausible = [&](const Sim3d& S) {
-    return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
-           S.R.allFinite() && S.t.allFinite();
-  };
   geometry::Rng rng(rng_);
   int best = 0;
   Sim3d best_sim;
@@ -517,9 +586,9 @@ int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geom
     sample[1] = rng.uniform_index(static_cast<std::uint32_t>(n));
     sample[2] = rng.uniform_index(static_cast<std::uint32_t>(n));
     if (sample[0] == sample[1] || sample[0] == sample[2] || sample[1] == sample[2]) continue;
-    const Sim3d S = fit(sample);
-    if (!plausible(S)) continue;
-    const int c = count_inliers(S, nullptr);
+    const Sim3d S = fit_sim3(x_new_, x_old_, sample, metric_);
+    if (!plausible_sim3(S)) continue;
+    const int c = count_sim3_inliers(kf, S, K, nullptr);
     if (c > best) {
       best = c;
       best_sim = S;
@@ -527,27 +596,84 @@ int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geom
   }
   ++rng_;
   if (best < 3) return 0;
-  // Refit on the inliers until the set settles.
-  inlier_.assign(n, 0);
-  best = count_inliers(best_sim, &inlier_);
-  for (int round = 0; round < 3; ++round) {
-    std::vector<std::size_t> idx;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (inlier_[i]) idx.push_back(i);
-    }
-    const Sim3d S = fit(idx);
-    if (!plausible(S)) break;
-    std::vector<std::uint8_t> mask(n, 0);
-    const int c = count_inliers(S, &mask);
-    if (c < best) break;
-    best = c;
-    best_sim = S;
-    const bool same = mask == inlier_;
-    inlier_.swap(mask);
-    if (same) break;
-  }
   S_cand_new = best_sim;
-  return best;
+  return refit_sim3(kf, K, S_cand_new);
+}
+
+int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
+                               const geometry::Pinhole& K) {
+  SE3d T_w_old;
+  if (!map_.keyframe_pose(cand, T_w_old)) return 0;
+  const SE3d T_old_w = T_w_old.inverse();
+  SE3d T_w_new;
+  if (!map_.keyframe_pose(kf, T_w_new)) return 0;
+  const SE3d T_new_w = T_w_new.inverse();
+  const Sim3d S_new_cand = S_cand_new.inverse();
+  const auto kps_new = map_.keyframe_keypoints(kf);
+  const auto descs_new = map_.keyframe_descriptors(kf);
+  const std::uint32_t n_new = map_.keyframe_num_keypoints(kf);
+  // New keypoints already matched are not matched again, nor old points.
+  std::vector<std::uint8_t> new_taken(n_new, 0);
+  std::vector<map::PointId> old_done;
+  old_done.reserve(matches_.size());
+  for (const Match& m : matches_) {
+    if (m.kp_new < n_new) new_taken[m.kp_new] = 1;
+    old_done.push_back(m.p_old);
+  }
+  std::sort(old_done.begin(), old_done.end());
+  struct Best {
+    int dist = std::numeric_limits<int>::max();
+    Match match;
+  };
+  std::vector<Best> best_of(n_new);
+  map::PointView pv;
+  for (std::uint32_t v = 0; v < old_views_.size(); ++v) {
+    const map::KeyframeId id = old_views_[v].kf;
+    const std::uint32_t n_old = map_.keyframe_num_keypoints(id);
+    for (std::uint32_t j = 0; j < n_old; ++j) {
+      const map::PointId q = map_.keyframe_point(id, j);
+      if (q == map::kNoId || !map_.read_point(q, pv)) continue;
+      if (std::binary_search(old_done.begin(), old_done.end(), q)) continue;
+      old_done.insert(std::upper_bound(old_done.begin(), old_done.end(), q), q);
+      const Eigen::Vector3d x_new = S_new_cand * (T_old_w * pv.p_w);
+      if (x_new.z() <= 0.0) continue;
+      const Eigen::Vector2d uv = K.project(x_new);
+      int best = std::numeric_limits<int>::max();
+      std::uint32_t best_k = n_new;
+      for (std::uint32_t k = 0; k < n_new; ++k) {
+        if (new_taken[k]) continue;
+        const features::Keypoint& kn = kps_new[k];
+        const double e2 = (Eigen::Vector2d(kn.x, kn.y) - uv).squaredNorm();
+        if (e2 > opts_.fuse_radius_px * opts_.fuse_radius_px * sigma2(kn)) continue;
+        const map::PointId p = map_.keyframe_point(kf, k);
+        if (p == map::kNoId || p == q || map_.point_is_bad(p)) continue;
+        const int d = features::hamming(pv.descriptor, descs_new[k]);
+        if (d < best) {
+          best = d;
+          best_k = k;
+        }
+      }
+      if (best_k == n_new || best > opts_.max_descriptor_distance || best >= best_of[best_k].dist) {
+        continue;
+      }
+      best_of[best_k] = Best{best, Match{best_k, j, map_.keyframe_point(kf, best_k), q, v}};
+    }
+  }
+  int added = 0;
+  map::PointView a;
+  for (std::uint32_t k = 0; k < n_new; ++k) {
+    const Best& b = best_of[k];
+    if (b.dist == std::numeric_limits<int>::max()) continue;
+    if (!map_.read_point(b.match.p_new, a) || !map_.read_point(b.match.p_old, pv)) continue;
+    const Eigen::Vector3d xa = T_new_w * a.p_w;
+    const Eigen::Vector3d xb = T_old_w * pv.p_w;
+    if (xa.z() <= 0.0 || xb.z() <= 0.0) continue;
+    matches_.push_back(b.match);
+    x_new_.push_back(xa);
+    x_old_.push_back(xb);
+    ++added;
+  }
+  return added;
 }
 
 int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,

@@ -66,6 +66,8 @@ struct LoopOptions {
   double ratio = 0.8;                ///< best / second-best distance, at most
   int min_matches = 20;              ///< point matches needed before RANSAC
   int min_inliers = 20;              ///< matches the similarity must explain
+  int guided_min_inliers = 10;       ///< a RANSAC similarity this well supported is used to
+                                     ///< project the old points and find more matches (0: off)
   int ransac_iterations = 300;       ///< 3-point samples
   double inlier_chi2 = 5.991;        ///< squared transfer error / sigma^2 (2 dof, 95 %)
   int min_edge_weight = 15;          ///< shared points a covisibility pose-graph edge needs
@@ -100,6 +102,12 @@ struct LoopOptions {
             options::Range<int>{3, 100000});
     v.field("min_inliers", min_inliers, "matches the loop similarity must explain",
             options::Range<int>{3, 100000});
+    v.field("guided_min_inliers", guided_min_inliers,
+            "a RANSAC similarity with at least this many inliers projects the old keyframes' "
+            "points into the new keyframe (fuse_radius_px, max_descriptor_distance) to find the "
+            "matches the descriptor-only search missed, and is refit on all of them before "
+            "min_inliers is checked (0: off)",
+            options::Range<int>{0, 100000});
     v.field("ransac_iterations", ransac_iterations, "3-point RANSAC samples",
             options::Range<int>{1, 1000000});
     v.field("inlier_chi2", inlier_chi2,
@@ -192,12 +200,32 @@ class LoopCloser {
     SE3d T_view_cand = SE3d::Identity();  ///< candidate camera -> this keyframe's camera
   };
   std::vector<OldView> old_views_;
+  // The best-supported candidate's matches, inlier mask and old views, while the others are
+  // checked.
+  std::vector<Match> best_matches_;
+  std::vector<std::uint8_t> best_inlier_;
+  std::vector<OldView> best_old_views_;
   int match_points(map::KeyframeId kf, map::KeyframeId cand);
   /// Shift of the new keyframe by the loop, over the path travelled since the candidate.
   double implied_drift(map::KeyframeId kf, map::KeyframeId cand,
                        const geometry::Sim3d& S_cand_new) const;
   int ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
                   geometry::Sim3d& S_cand_new);
+  /// Camera-frame positions of the matches' points (x_new_, x_old_); drops the matches whose
+  /// points are gone or behind a camera. False when a pose is missing.
+  bool match_positions(map::KeyframeId kf, map::KeyframeId cand);
+  /// Matches of matches_ that S_cand_new explains (reprojection in both keyframes); their mask
+  /// in `mask` when given.
+  int count_sim3_inliers(map::KeyframeId kf, const geometry::Sim3d& S_cand_new,
+                         const geometry::Pinhole& K, std::vector<std::uint8_t>* mask) const;
+  /// Refits S_cand_new on its inliers until the set settles; inlier_ holds them. Returns
+  /// their count.
+  int refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, geometry::Sim3d& S_cand_new);
+  /// Guided search: the old views' points not matched yet, moved into the new keyframe by
+  /// S_cand_new, matched to the new keyframe's unmatched map-point keypoints within
+  /// fuse_radius_px sigmas; appended to matches_. Returns how many.
+  int guided_matches(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+                     const geometry::Pinhole& K);
   int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
               const geometry::Pinhole& K, LoopReport& rep);
   float sigma2(const features::Keypoint& k) const;
