@@ -33,6 +33,22 @@ constexpr double kMaxLoopScale = 2.0;
 /// Refits of a loop similarity on its inliers before the inlier set is taken as settled.
 constexpr int kRefitRounds = 3;
 
+Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eigen::Vector3d>& x_old,
+               const std::vector<std::size_t>& idx, bool metric) {
+  Eigen::Matrix3Xd src(3, static_cast<Eigen::Index>(idx.size()));
+  Eigen::Matrix3Xd dst(3, static_cast<Eigen::Index>(idx.size()));
+  for (std::size_t k = 0; k < idx.size(); ++k) {
+    src.col(static_cast<Eigen::Index>(k)) = x_new[idx[k]];
+    dst.col(static_cast<Eigen::Index>(k)) = x_old[idx[k]];
+  }
+  return geometry::umeyama_sim3(src, dst, !metric);
+}
+
+bool plausible_sim3(const Sim3d& S) {
+  return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
+         S.R.allFinite() && S.t.allFinite();
+}
+
 double elapsed_ms(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -528,26 +544,6 @@ int LoopCloser::count_sim3_inliers(map::KeyframeId kf, const Sim3d& S_cand_new,
   return count;
 }
 
-namespace {
-
-Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eigen::Vector3d>& x_old,
-               const std::vector<std::size_t>& idx, bool metric) {
-  Eigen::Matrix3Xd src(3, static_cast<Eigen::Index>(idx.size()));
-  Eigen::Matrix3Xd dst(3, static_cast<Eigen::Index>(idx.size()));
-  for (std::size_t k = 0; k < idx.size(); ++k) {
-    src.col(static_cast<Eigen::Index>(k)) = x_new[idx[k]];
-    dst.col(static_cast<Eigen::Index>(k)) = x_old[idx[k]];
-  }
-  return geometry::umeyama_sim3(src, dst, !metric);
-}
-
-bool plausible_sim3(const Sim3d& S) {
-  return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
-         S.R.allFinite() && S.t.allFinite();
-}
-
-}  // namespace
-
 int LoopCloser::refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, Sim3d& S_cand_new) {
   const std::size_t n = matches_.size();
   inlier_.assign(n, 0);
@@ -605,9 +601,6 @@ int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const S
   SE3d T_w_old;
   if (!map_.keyframe_pose(cand, T_w_old)) return 0;
   const SE3d T_old_w = T_w_old.inverse();
-  SE3d T_w_new;
-  if (!map_.keyframe_pose(kf, T_w_new)) return 0;
-  const SE3d T_new_w = T_w_new.inverse();
   const Sim3d S_new_cand = S_cand_new.inverse();
   const auto kps_new = map_.keyframe_keypoints(kf);
   const auto descs_new = map_.keyframe_descriptors(kf);
@@ -659,21 +652,12 @@ int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const S
       best_of[best_k] = Best{best, Match{best_k, j, map_.keyframe_point(kf, best_k), q, v}};
     }
   }
-  int added = 0;
-  map::PointView a;
+  const std::size_t before = matches_.size();
   for (std::uint32_t k = 0; k < n_new; ++k) {
-    const Best& b = best_of[k];
-    if (b.dist == std::numeric_limits<int>::max()) continue;
-    if (!map_.read_point(b.match.p_new, a) || !map_.read_point(b.match.p_old, pv)) continue;
-    const Eigen::Vector3d xa = T_new_w * a.p_w;
-    const Eigen::Vector3d xb = T_old_w * pv.p_w;
-    if (xa.z() <= 0.0 || xb.z() <= 0.0) continue;
-    matches_.push_back(b.match);
-    x_new_.push_back(xa);
-    x_old_.push_back(xb);
-    ++added;
+    if (best_of[k].dist != std::numeric_limits<int>::max()) matches_.push_back(best_of[k].match);
   }
-  return added;
+  if (matches_.size() == before || !match_positions(kf, cand)) return 0;
+  return static_cast<int>(matches_.size()) - static_cast<int>(before);
 }
 
 int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
