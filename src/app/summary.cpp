@@ -125,7 +125,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   const frontend::TrackerCounters& tc = st.tracker;
   j << "  \"tracking\": {\"initialized\": " << (tc.initialized ? "true" : "false")
     << ", \"initialized_seq\": " << tc.initialized_seq
-    << ", \"init_attempts\": " << tc.init_attempts << ", \"init_refusals\": " << tc.init_refusals
+    << ", \"reference_seq\": " << tc.reference_seq << ", \"init_attempts\": " << tc.init_attempts
+    << ", \"init_refusals\": " << tc.init_refusals
     << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal)
     << ", \"tracked\": " << tc.tracked << ", \"lost\": " << tc.lost
     << ", \"wide_searches\": " << tc.wide_searches;

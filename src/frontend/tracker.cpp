@@ -602,6 +602,7 @@ void Tracker::set_reference(const hal::Frame& frame) {
   ref_prev_.clear();
   for (const auto& k : kps_) ref_prev_.emplace_back(k.x, k.y);
   ref_valid_ = true;
+  plane_hints_.clear();
   ref_seq_ = frame.seq;
   ref_t_ns_ = frame.t_ns;
 }
@@ -667,7 +668,9 @@ bool Tracker::focal_from_reference(int matches) {
 }
 
 bool Tracker::reference_too_old(std::int64_t t_ns) const {
-  return static_cast<double>(t_ns - ref_t_ns_) * 1e-9 > opts_.init.max_reference_age_s;
+  const double max_age_s = plane_hints_.empty() ? opts_.init.max_reference_age_s
+                                                : opts_.init.max_plane_hint_reference_age_s;
+  return static_cast<double>(t_ns - ref_t_ns_) * 1e-9 > max_age_s;
 }
 
 bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
@@ -693,8 +696,9 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   }
   ++counters_.init_attempts;
   const geometry::TwoViewResult tv =
-      geometry::reconstruct_two_view(init_uv0_, init_uv1_, K_, opts_.init.two_view);
+      geometry::reconstruct_two_view(init_uv0_, init_uv1_, K_, opts_.init.two_view, plane_hints_);
   if (!tv.ok) {
+    if (opts_.init.plane_hints && plane_hints_.empty()) plane_hints_ = tv.plane_normals_c0;
     ++counters_.init_refusals;
     counters_.last_init_refusal = geometry::to_string(tv.refusal);
     MER_LOG_DEBUG("frame %llu: initialization refused (%s)",
@@ -771,6 +775,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   initialized_ = true;
   counters_.initialized = true;
   counters_.initialized_seq = frame.seq;
+  counters_.reference_seq = ref_seq_;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;
@@ -855,6 +860,7 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
   initialized_ = true;
   counters_.initialized = true;
   counters_.initialized_seq = frame.seq;
+  counters_.reference_seq = frame.seq;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;

@@ -54,6 +54,7 @@ struct TrackerCounters {
   std::uint64_t init_attempts = 0;    ///< two-view reconstructions tried
   std::uint64_t init_refusals = 0;    ///< of which refused (degenerate)
   std::uint64_t initialized_seq = 0;  ///< frame the map was initialized at
+  std::uint64_t reference_seq = 0;    ///< its reference frame (the world frame in mono)
   bool initialized = false;
   std::uint64_t tracked = 0;
   std::uint64_t lost = 0;
@@ -205,6 +206,7 @@ class Tracker {
   bool ref_valid_ = false;
   std::uint64_t ref_seq_ = 0;
   std::int64_t ref_t_ns_ = 0;
+  std::vector<Eigen::Vector3d> plane_hints_;  ///< plane normals of the reference's first planar tie
   std::vector<features::Keypoint> ref_kps_;
   std::vector<features::Descriptor> ref_descs_;
   std::vector<Eigen::Vector2d> ref_prev_;  // last matched position of each reference keypoint

@@ -56,7 +56,10 @@ struct InitOptions {
   double ratio = 0.9;      ///< best / second-best ratio of an initialization match
   int min_features = 150;  ///< a reference frame needs this many keypoints
   double max_reference_age_s = 1.4;  ///< time a reference is kept while init is refused, s
-  int rgbd_min_points = 100;         ///< RGB-D: keypoints with valid depth needed to start
+  bool plane_hints = false;          ///< break planar ties with an earlier frame's plane normals
+  double max_plane_hint_reference_age_s =
+      3.0;                    ///< time a reference is kept while it holds plane hints, s
+  int rgbd_min_points = 100;  ///< RGB-D: keypoints with valid depth needed to start
 
   template <class V>
   void visit(V& v) {
@@ -72,6 +75,15 @@ struct InitOptions {
             options::Range<int>{8, 100000});
     v.field("max_reference_age_s", max_reference_age_s,
             "time a reference frame is kept while initialization is refused, s",
+            options::Range<double>{0.01, 1e6});
+    v.field("plane_hints", plane_hints,
+            "break the two-fold tie of a planar scene with the plane normals an earlier frame "
+            "of the same reference reported (off by default: on room_orbit it initializes "
+            "1.8-2.5 s into the stream from a thin planar map, and 5 of 8 seeds then diverge)");
+    v.field("max_plane_hint_reference_age_s", max_plane_hint_reference_age_s,
+            "time a reference frame is kept once an ambiguous planar pair gave it plane hints "
+            "(the twin's plane normal turns with the translation until a later frame breaks "
+            "the tie), s",
             options::Range<double>{0.01, 1e6});
     v.field("rgbd_min_points", rgbd_min_points, "RGB-D: keypoints with valid depth needed to start",
             options::Range<int>{3, 100000});

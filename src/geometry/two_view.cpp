@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
@@ -272,7 +273,42 @@ Eigen::Matrix3d k_matrix(const Pinhole& K) {
 struct Motion {
   Eigen::Matrix3d R;
   Eigen::Vector3d t;
+  Eigen::Vector3d n = Eigen::Vector3d::Zero();  ///< homography candidates: unit plane normal,
+                                                ///< camera 0, z >= 0
 };
+
+Eigen::Vector3d facing_away(const Eigen::Vector3d& n) {
+  return n.z() < 0.0 ? Eigen::Vector3d(-n) : n;
+}
+
+/// Angle between two unit normals (either sign), deg.
+double normal_angle_deg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return std::acos(std::min(1.0, std::abs(a.dot(b)))) * kRadToDeg;
+}
+
+/// The tied homography candidate the plane hints single out: the only one whose normal is
+/// within plane_hint_agree_deg of a hint while every other is at least plane_hint_refute_deg
+/// from all hints. nullopt without hints or without such a candidate.
+std::optional<std::size_t> tie_broken_by_plane_hints(std::span<const Motion> candidates,
+                                                     std::span<const std::size_t> tied,
+                                                     std::span<const Eigen::Vector3d> hints,
+                                                     const TwoViewOptions& o) {
+  if (hints.empty()) return std::nullopt;
+  std::optional<std::size_t> winner;
+  for (const std::size_t k : tied) {
+    double nearest = std::numeric_limits<double>::infinity();
+    for (const Eigen::Vector3d& h : hints) {
+      nearest = std::min(nearest, normal_angle_deg(candidates[k].n, h.normalized()));
+    }
+    if (nearest <= o.plane_hint_agree_deg) {
+      if (winner) return std::nullopt;  // two candidates agree: no decision
+      winner = k;
+    } else if (nearest < o.plane_hint_refute_deg) {
+      return std::nullopt;  // neither agrees nor is refuted
+    }
+  }
+  return winner;
+}
 
 /// The four (R, t) factorizations of an essential matrix (Hartley & Zisserman, result 9.19).
 std::vector<Motion> decompose_essential(const Eigen::Matrix3d& E) {
@@ -325,7 +361,8 @@ std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
     Eigen::Matrix3d Rp;
     Rp << cos_theta, 0.0, -sin_theta, 0.0, 1.0, 0.0, sin_theta, 0.0, cos_theta;
     const Eigen::Vector3d tp = (d1 - d3) * Eigen::Vector3d(x1, 0.0, -x3);
-    out.push_back({s * U * Rp * V.transpose(), U * tp});
+    out.push_back(
+        {s * U * Rp * V.transpose(), U * tp, facing_away(V * Eigen::Vector3d(x1, 0.0, x3))});
   }
   // d' = -d2
   const double cos_phi = (d1 * d3 - d2s) / ((d1 - d3) * d2);
@@ -337,7 +374,8 @@ std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
     Eigen::Matrix3d Rp;
     Rp << cos_phi, 0.0, sin_phi, 0.0, -1.0, 0.0, sin_phi, 0.0, -cos_phi;
     const Eigen::Vector3d tp = (d1 + d3) * Eigen::Vector3d(x1, 0.0, x3);
-    out.push_back({s * U * Rp * V.transpose(), U * tp});
+    out.push_back(
+        {s * U * Rp * V.transpose(), U * tp, facing_away(V * Eigen::Vector3d(x1, 0.0, x3))});
   }
   return out;
 }
@@ -823,7 +861,8 @@ constexpr double kEssentialFallbackMaxPlanarFraction = 0.85;
 
 TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
                                std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
-                               const TwoViewOptions& o, bool force_essential) {
+                               const TwoViewOptions& o, bool force_essential,
+                               std::span<const Eigen::Vector3d> plane_hints) {
   TwoViewResult r;
   const std::size_t n = uv0.size();
   if (uv1.size() != n || n < static_cast<std::size_t>(std::max(o.min_matches, kSampleSize))) {
@@ -919,6 +958,7 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   // consistent points, not good ones: under forward motion the true decomposition sees less
   // parallax than its twin (which moves sideways), so fewer of its points pass the parallax
   // bar, though it explains them all.
+  std::vector<std::size_t> tied{best};
   for (std::size_t k = 0; k < checks.size(); ++k) {
     if (k == best || checks[k].consistent <= o.ambiguity_ratio * checks[best].consistent) {
       continue;
@@ -929,8 +969,27 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
         ++refuted;
       }
     }
-    if (refuted < kMinRefutedFraction * checks[best].good) {
+    if (refuted < kMinRefutedFraction * checks[best].good) tied.push_back(k);
+  }
+  if (tied.size() > 1) {
+    const bool planar = r.model == TwoViewModel::kHomography;
+    const std::optional<std::size_t> winner =
+        planar ? tie_broken_by_plane_hints(candidates, tied, plane_hints, o) : std::nullopt;
+    if (!winner) {
+      if (planar && r.median_parallax_deg >= o.plane_hint_min_parallax_deg) {
+        for (const std::size_t k : tied) r.plane_normals_c0.push_back(candidates[k].n);
+      }
       return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+    }
+    if (*winner != best) {
+      best = *winner;
+      r.median_parallax_deg = median_of(checks[best].parallax_deg);
+      if (r.median_parallax_deg < o.min_parallax_deg) {
+        return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+      }
+      if (checks[best].good < o.min_triangulated) {
+        return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+      }
     }
   }
 
@@ -1001,8 +1060,9 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
 
 TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
                                    std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
-                                   const TwoViewOptions& o) {
-  TwoViewResult r = reconstruct_impl(uv0, uv1, K, o, false);
+                                   const TwoViewOptions& o,
+                                   std::span<const Eigen::Vector3d> plane_hints) {
+  TwoViewResult r = reconstruct_impl(uv0, uv1, K, o, false, plane_hints);
   // A homography preferred by the scores can still be ambiguous (a dominant plane seen
   // under forward-ish motion has two physically valid decompositions) while the points off
   // the plane (boxes in front of a wall, another wall) pin down the essential matrix: try
@@ -1011,7 +1071,7 @@ TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
   if (!r.ok && r.model == TwoViewModel::kHomography &&
       (r.refusal == TwoViewRefusal::kAmbiguous ||
        r.refusal == TwoViewRefusal::kTooFewTriangulated)) {
-    TwoViewResult e = reconstruct_impl(uv0, uv1, K, o, true);
+    TwoViewResult e = reconstruct_impl(uv0, uv1, K, o, true, plane_hints);
     if (e.ok) return e;
   }
   return r;

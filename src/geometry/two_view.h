@@ -71,7 +71,12 @@ struct TwoViewOptions {
   double max_translation_dir_sigma_deg = 0.25;  ///< below it: essential with a smaller sigma
   double ambiguity_ratio = 0.7;  ///< a 2nd candidate consistent with this fraction of the
                                  ///< winner's points, not refuted by them -> ambiguous, refuse
-  std::uint64_t seed = 1;        ///< RANSAC random seed (deterministic runs)
+  double plane_hint_min_parallax_deg = 2.0;  ///< an ambiguous homography reports its candidates'
+                                             ///< plane normals from this median parallax on
+  double plane_hint_agree_deg = 5.0;         ///< a candidate's normal this close to a hint agrees
+  double plane_hint_refute_deg = 12.0;       ///< every other tied candidate this far from all hints
+                                             ///< -> the agreeing candidate wins the tie
+  std::uint64_t seed = 1;                    ///< RANSAC random seed (deterministic runs)
 
   template <class V>
   void visit(V& v) {
@@ -110,6 +115,20 @@ struct TwoViewOptions {
             "refuse when another motion candidate is consistent with this fraction of the "
             "points the winner is consistent with (unless the winner's good points refute it)",
             options::Range<double>{0.0, 1.0});
+    v.field("plane_hint_min_parallax_deg", plane_hint_min_parallax_deg,
+            "an ambiguous homography reports the plane normals of its tied candidates "
+            "(TwoViewResult::plane_normals_c0) once the winner's median parallax reaches this, "
+            "deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("plane_hint_agree_deg", plane_hint_agree_deg,
+            "with plane hints from an earlier pair of the same reference: a tied candidate "
+            "whose plane normal is within this angle of a hint agrees with it, deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("plane_hint_refute_deg", plane_hint_refute_deg,
+            "the agreeing candidate wins the tie only if every other tied candidate's normal is "
+            "at least this far from all hints (the twin's normal moves with the translation), "
+            "deg",
+            options::Range<double>{0.0, 90.0});
     // The YAML layer reads signed 64-bit integers: go through one (seeds are small).
     std::int64_t seed_value = static_cast<std::int64_t>(seed);
     v.field("seed", seed_value, "RANSAC random seed",
@@ -159,13 +178,27 @@ struct TwoViewResult {
   double score_f = 0;                      ///< RANSAC score of the fundamental matrix
   double rotation_sigma_deg = 0;           ///< 1-sigma rotation uncertainty (essential model)
   double translation_dir_sigma_deg = 0;    ///< 1-sigma translation direction uncertainty (ditto)
+  /// Refused as ambiguous with the homography model at a median parallax of at least
+  /// plane_hint_min_parallax_deg: the unit plane normals (camera 0, z > 0) of the tied
+  /// candidates, winner first. Passed back as plane hints with a later frame of the same
+  /// reference, they break the tie: the true plane keeps its normal, the twin's normal turns
+  /// with the direction of translation.
+  std::vector<Eigen::Vector3d> plane_normals_c0;
 };
 
 /// Monocular initialization from pixel correspondences uv0[i] <-> uv1[i] (undistorted
 /// images of one pinhole camera K). Deterministic for a given seed.
+///
+/// A planar scene seen from two views has two valid decompositions of its homography (Faugeras
+/// & Lustman): the true plane and motion, and a twin whose plane normal follows the
+/// translation. `plane_hints` (the plane_normals_c0 an earlier, ambiguous pair with the same
+/// first image reported) resolve the tie when exactly one tied candidate's normal agrees with
+/// a hint (plane_hint_agree_deg) and all the others are far from every hint
+/// (plane_hint_refute_deg): a third view, as a camera that keeps turning gives.
 TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
                                    std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
-                                   const TwoViewOptions& o);
+                                   const TwoViewOptions& o,
+                                   std::span<const Eigen::Vector3d> plane_hints = {});
 
 // ---- Building blocks (also used by self_calibration) --------------------------------------
 

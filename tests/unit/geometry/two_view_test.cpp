@@ -404,6 +404,79 @@ TEST(TwoView, ForwardMotionTowardsAPlaneNeverTakesTheTwin) {
   std::printf("[ forward plane ] %d trials, %d accepted\n", kTrials, accepted);
 }
 
+TEST(TwoView, PlaneHintsFromAnEarlierFrameBreakThePlanarTie) {
+  // A camera walking towards a wall while its path bends (an orbit): with only the wall in
+  // view every pair is the two-fold planar tie. The reference paired with an earlier frame j
+  // reports both candidates' plane normals; paired with a later frame k, whose translation
+  // has turned, the true candidate keeps the wall's normal while the twin's moves with the
+  // translation, and the hints from j single out the true motion.
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const Eigen::Vector3d wall_n = Eigen::Vector3d(0.5, -0.4, 1.0).normalized();  // make_scene's
+  int tied_j = 0, tied_k = 0, resolved = 0;
+  constexpr int kTrials = kOptimizedBuild ? 40 : 10;
+  for (int trial = 0; trial < kTrials; ++trial) {
+    // Frame j: 0.25-0.35 m at 15-30 deg off the optical axis, a 4-8 deg turn about the
+    // vertical; frame k: as far again, the path bent by 20-30 deg, twice the turn.
+    const double off_axis = (15.0 + 15.0 * unit(rng)) * kDeg;
+    const double bend = (20.0 + 10.0 * unit(rng)) * kDeg;
+    const double step = 0.25 + 0.1 * unit(rng);
+    const double turn = 4.0 + 4.0 * unit(rng);
+    auto dir = [](double a) { return Eigen::Vector3d(-std::sin(a), 0.0, std::cos(a)); };
+    const Eigen::Vector3d c_j = step * dir(off_axis);
+    const Eigen::Vector3d c_k = c_j + step * dir(off_axis + bend);
+    auto pose = [](const Eigen::Vector3d& c, double yaw_deg) {
+      SE3d T_c_c0 = motion(Eigen::Vector3d::UnitY(), yaw_deg, Eigen::Vector3d::Zero());
+      T_c_c0.translation() = -(T_c_c0.linear() * c);
+      return T_c_c0;
+    };
+    const SE3d T_cj_c0 = pose(c_j, turn);
+    const SE3d T_ck_c0 = pose(c_k, 2.0 * turn);
+    const Scene sj = make_scene(T_cj_c0, 500, 1.0, 0.05, /*planar=*/true, 900 + trial);
+    const Scene sk = make_scene(T_ck_c0, 500, 1.0, 0.05, /*planar=*/true, 1900 + trial);
+    TwoViewOptions o;
+    o.seed = static_cast<std::uint64_t>(trial) + 1;
+    const TwoViewResult rj = reconstruct_two_view(sj.uv0, sj.uv1, camera(), o);
+    if (rj.refusal != TwoViewRefusal::kAmbiguous || rj.plane_normals_c0.size() < 2) continue;
+    ++tied_j;
+    // One of the reported normals is the wall's.
+    double nearest = 180.0;
+    for (const Eigen::Vector3d& n : rj.plane_normals_c0) {
+      EXPECT_NEAR(n.norm(), 1.0, 1e-9);
+      EXPECT_GE(n.z(), 0.0);
+      nearest = std::min(nearest, direction_error_deg(n, wall_n));
+    }
+    EXPECT_LT(nearest, o.plane_hint_agree_deg) << "trial " << trial;
+    const TwoViewResult plain = reconstruct_two_view(sk.uv0, sk.uv1, camera(), o);
+    if (plain.refusal != TwoViewRefusal::kAmbiguous) continue;
+    ++tied_k;
+    const TwoViewResult r = reconstruct_two_view(sk.uv0, sk.uv1, camera(), o, rj.plane_normals_c0);
+    if (!r.ok) continue;
+    ++resolved;
+    EXPECT_EQ(r.model, TwoViewModel::kHomography) << "trial " << trial;
+    EXPECT_LT(rotation_error_deg(r.T_c1_c0, T_ck_c0), 0.5) << "trial " << trial << ": the twin";
+    EXPECT_LT(direction_error_deg(r.T_c1_c0.translation(), T_ck_c0.translation()), 5.0)
+        << "trial " << trial << ": the twin";
+  }
+  std::printf("[ plane hints ] %d trials: %d tied at j, %d tied at k, %d resolved\n", kTrials,
+              tied_j, tied_k, resolved);
+  EXPECT_GE(tied_k, kTrials / 4) << "the scene must produce the tie the hints are for";
+  EXPECT_GE(resolved, tied_k / 2) << "the hints must break most ties";
+}
+
+TEST(TwoView, PlaneHintsNeverPickACandidateFarFromThem) {
+  // Hints that match neither candidate (another plane) decide nothing: the tie stays a refusal.
+  const Eigen::Vector3d c1(-0.1, 0.0, 0.3);
+  const SE3d T_c1_c0 = motion(Eigen::Vector3d::UnitY(), 5.0, -c1);
+  const Scene s = make_scene(T_c1_c0, 500, 1.0, 0.05, /*planar=*/true, 42);
+  TwoViewOptions o;
+  const TwoViewResult plain = reconstruct_two_view(s.uv0, s.uv1, camera(), o);
+  ASSERT_EQ(plain.refusal, TwoViewRefusal::kAmbiguous);
+  const std::vector<Eigen::Vector3d> floor{Eigen::Vector3d::UnitY()};
+  const TwoViewResult r = reconstruct_two_view(s.uv0, s.uv1, camera(), o, floor);
+  EXPECT_EQ(r.refusal, TwoViewRefusal::kAmbiguous);
+}
+
 TEST(TwoView, DrivingTowardsAFarWallUsesTheFloorsParallax) {
   // A car driving towards a far wall (a street's end): most points lie on the wall, whose
   // homography wins and whose two decompositions nearly agree, so its twin is never refuted
