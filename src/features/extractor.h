@@ -40,6 +40,7 @@ struct ExtractorOptions {
   int grid_cols = 8;            ///< bucketing grid columns at level 0 (scaled per level)
   int grid_rows = 6;            ///< bucketing grid rows at level 0 (scaled per level)
   int edge_threshold = 19;      ///< border without features, px (must fit the 31x31 patch)
+  bool subpixel = false;        ///< orb: sub-pixel keypoints from the FAST scores around them
 
   template <class V>
   void visit(V& v) {
@@ -67,6 +68,10 @@ struct ExtractorOptions {
     v.field("edge_threshold", edge_threshold,
             "image border without features, px (>= 16 so the radius-15 descriptor patch fits)",
             options::Range<int>{16, 128});
+    v.field("subpixel", subpixel,
+            "orb backend: place each keypoint at the peak of a parabola through the FAST scores "
+            "of its row and column neighbours (within half a pixel of its level; opencv_orb "
+            "ignores it)");
   }
 };
 

@@ -9,6 +9,7 @@
 /// radius 3 are all brighter than I(p) + t or all darker than I(p) - t. Score = sum over
 /// the circle of max(0, |I(x) - I(p)| - t), used for suppression and bucketing.
 
+#include <algorithm>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -65,6 +66,19 @@ inline bool fast_is_local_max(const std::uint16_t* up, const std::uint16_t* scor
   const int v = score_row[x];
   return v >= score_row[x + 1] && v > score_row[x - 1] && v > up[x - 1] && v > up[x] &&
          v > up[x + 1] && v >= down[x - 1] && v >= down[x] && v >= down[x + 1];
+}
+
+/// Sub-pixel offset of a score peak along one axis: the vertex of the parabola through the
+/// scores before (`before`), at (`at`) and after (`after`) a local maximum, in pixels of its
+/// level, clamped to [-0.5, 0.5] (the maximum is the pixel nearest to the peak); 0 when the
+/// three do not bend down. A neighbour below the FAST threshold counts with score 0. The FAST
+/// score moves with the image, so its peak follows a corner between pixels (a quadratic fit
+/// of FAST scores, as BRISK does across scales) and is repeatable from view to view where the
+/// integer maximum jumps by up to half a pixel.
+inline float score_peak_offset(float before, float at, float after) {
+  const float bend = before - 2.0F * at + after;
+  if (!(bend < 0.0F)) return 0.0F;
+  return std::clamp(0.5F * (before - after) / bend, -0.5F, 0.5F);
 }
 
 /// A detected corner.

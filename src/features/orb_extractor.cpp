@@ -416,8 +416,12 @@ void OrbExtractor::detect_rect(int level, const std::uint8_t* img, std::ptrdiff_
       const int x = xm[i];
       if (!fast_is_local_max(su, sm, sd, x) || lv.num_candidates == lv.cand_capacity) continue;
       const auto cell = static_cast<std::uint16_t>(row_cell + col_of_x[x - lv.x0]);
-      out[lv.num_candidates++] =
-          Candidate{static_cast<std::int16_t>(x), static_cast<std::int16_t>(y), sm[x], cell};
+      Candidate cand{static_cast<std::int16_t>(x), static_cast<std::int16_t>(y), sm[x], cell};
+      if (opts_.subpixel) {
+        cand.dx = score_peak_offset(sm[x - 1], sm[x], sm[x + 1]);
+        cand.dy = score_peak_offset(su[x], sm[x], sd[x]);
+      }
+      out[lv.num_candidates++] = cand;
       ++cell_count[cell];
     }
   };
@@ -593,11 +597,11 @@ void OrbExtractor::describe(int level, const std::uint8_t* raw, std::ptrdiff_t r
 
     Keypoint& kp = keypoints_[count_];
     if (level == 0) {
-      kp.x = static_cast<float>(c.x);
-      kp.y = static_cast<float>(c.y);
+      kp.x = static_cast<float>(c.x) + c.dx;
+      kp.y = static_cast<float>(c.y) + c.dy;
     } else {
-      kp.x = (static_cast<float>(c.x) + 0.5F) * lv.to_x0 - 0.5F;
-      kp.y = (static_cast<float>(c.y) + 0.5F) * lv.to_y0 - 0.5F;
+      kp.x = (static_cast<float>(c.x) + c.dx + 0.5F) * lv.to_x0 - 0.5F;
+      kp.y = (static_cast<float>(c.y) + c.dy + 0.5F) * lv.to_y0 - 0.5F;
     }
     kp.angle_rad = angle;
     kp.response = static_cast<float>(c.score);

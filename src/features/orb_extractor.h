@@ -11,7 +11,8 @@
 /// 2. Detection: FAST-9 (fast_detector.h) with 3x3 non-maximum suppression in the region
 ///    `edge_threshold` px inside each level; a grid (grid_cols x grid_rows at level 0, fewer
 ///    cells at coarser levels) over that region, and in every cell where nothing was found,
-///    a retry with `min_fast_threshold`.
+///    a retry with `min_fast_threshold`. With `subpixel`, each corner moves to the peak of a
+///    parabola through its FAST score and its row / column neighbours' (score_peak_offset).
 /// 3. Selection: level l gets about N (1 - 1/s) / (1 - 1/s^L) / s^l of the N features (more
 ///    at fine levels, as in ORB-SLAM); a level with too few corners passes its share to the
 ///    others. Inside a level, every grid cell gives its strongest corner (FAST score; when
@@ -83,6 +84,8 @@ class OrbExtractor final : public Extractor {
     std::int16_t y = 0;
     std::uint16_t score = 0;
     std::uint16_t cell = 0;
+    float dx = 0.0F;  ///< sub-pixel offset of the score peak (subpixel), level px
+    float dy = 0.0F;
   };
   struct Level {
     int width = 0;

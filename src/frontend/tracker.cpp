@@ -789,11 +789,18 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   r.focal = K_.fx;
   last_T_w_c_ = T_w_c1;
   ++counters_.tracked;
-  MER_LOG_INFO("initialized at frame %llu from frame %llu: %s model, %d points, parallax %.2f deg",
-               static_cast<unsigned long long>(frame.seq),
-               static_cast<unsigned long long>(ref_seq_),
-               tv.model == geometry::TwoViewModel::kHomography ? "homography" : "essential", ni,
-               tv.median_parallax_deg);
+  if (tv.model == geometry::TwoViewModel::kEssential) {
+    MER_LOG_INFO(
+        "initialized at frame %llu from frame %llu: essential model, %d points, parallax %.2f "
+        "deg, translation direction sigma %.3f deg",
+        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
+        tv.median_parallax_deg, tv.translation_dir_sigma_deg);
+  } else {
+    MER_LOG_INFO(
+        "initialized at frame %llu from frame %llu: homography model, %d points, parallax %.2f deg",
+        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
+        tv.median_parallax_deg);
+  }
   return true;
 }
 
