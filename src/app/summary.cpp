@@ -1,6 +1,7 @@
 #include "app/summary.h"
 
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -188,7 +189,13 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"lock_wait_mean_ms\": "
     << num(ba.runs ? ba.lock_wait_ms / static_cast<double>(ba.runs) : 0.0)
     << ", \"lock_wait_max_ms\": " << num(ba.max_lock_wait_ms)
-    << ", \"coalesced_keyframes\": " << st.backend_coalesced << "},\n";
+    << ", \"coalesced_keyframes\": " << st.backend_coalesced;
+  const auto nk = static_cast<double>(ba.new_keyframe_runs);
+  j << ", \"new_keyframe_runs\": " << ba.new_keyframe_runs << ", \"new_keyframe_step_ratio\": "
+    << num(ba.new_keyframe_runs ? std::exp(ba.sum_log_step_ratio / nk) : 1.0)
+    << ", \"new_keyframe_shift\": " << num(ba.new_keyframe_runs ? ba.sum_shift_fraction / nk : 0.0)
+    << ", \"new_keyframe_turn_deg\": " << num(ba.new_keyframe_runs ? ba.sum_rotation_deg / nk : 0.0)
+    << "},\n";
   const backend::LoopTotals& lp = st.loop;
   j << "  \"loop\": {\"keyframes_checked\": " << lp.keyframes_checked
     << ", \"candidates_checked\": " << lp.candidates_checked

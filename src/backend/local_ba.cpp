@@ -21,6 +21,7 @@ namespace {
 constexpr std::size_t kMaxCovisibleRead = 128;    // covisible neighbours read per keyframe
 constexpr std::size_t kMaxObservationsRead = 64;  // observations read per point
 constexpr double kMsPerS = 1000.0;
+constexpr double kRadToDeg = 57.29577951308232;
 constexpr std::size_t kMaxDenseSchurKeyframes = 64;  // larger windows: sparse Schur
 constexpr double kMinDepth = 1e-6;  // camera z below which an observation is not evaluable
 /// Per run, the time held back from the solves for the work after them decays by this factor
@@ -266,9 +267,33 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   for (std::size_t i = 0; i < nc && static_cast<int>(window.size()) < opts_.window_keyframes; ++i) {
     window.push_back(covis[i].id);
   }
+  // A new keyframe's tracked pose and its step from the previous run's keyframe.
+  SE3d T_w_new;
+  SE3d T_w_last;
+  const bool first_run = kf != last_kf_ || map_.keyframe_t_ns(kf) != last_kf_t_ns_;
+  const bool measure_step =
+      first_run && last_kf_ != map::kNoId && map_.keyframe_t_ns(last_kf_) == last_kf_t_ns_ &&
+      map_.keyframe_pose(kf, T_w_new) && map_.keyframe_pose(last_kf_, T_w_last);
   LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, t0, lock);
   rep.lock_wait_ms += wait_ms;
   if (!rep.ran) return rep;
+  if (first_run) {
+    const double step = (T_w_new.translation() - T_w_last.translation()).norm();
+    SE3d T_w_new_after;
+    SE3d T_w_last_after;
+    if (measure_step && step > 0.0 && map_.keyframe_pose(kf, T_w_new_after) &&
+        map_.keyframe_pose(last_kf_, T_w_last_after)) {
+      const double step_after = (T_w_new_after.translation() - T_w_last_after.translation()).norm();
+      const Eigen::AngleAxisd turn(T_w_new.linear().transpose() * T_w_new_after.linear());
+      ++totals_.new_keyframe_runs;
+      totals_.sum_log_step_ratio += std::log(std::max(step_after, kMinDepth) / step);
+      totals_.sum_shift_fraction +=
+          (T_w_new_after.translation() - T_w_new.translation()).norm() / step;
+      totals_.sum_rotation_deg += turn.angle() * kRadToDeg;
+    }
+    last_kf_ = kf;
+    last_kf_t_ns_ = map_.keyframe_t_ns(kf);
+  }
   ++totals_.runs;
   totals_.aborted += rep.aborted ? 1U : 0U;
   totals_.timed_out += rep.timed_out ? 1U : 0U;

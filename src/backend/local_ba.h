@@ -154,6 +154,13 @@ struct LocalBaTotals {
   std::uint64_t stale_writes = 0;  ///< results dropped at write-back (LocalBaReport)
   double lock_wait_ms = 0.0;       ///< total wait for the map's writer lock
   double max_lock_wait_ms = 0.0;   ///< longest wait of one run
+  /// A new keyframe's first run, against its tracked pose (the step: its offset from the
+  /// keyframe the previous run was for): how much the run moves it, a measure of what
+  /// tracking missed that the map then knows (0 for the map's own frame of reference).
+  std::uint64_t new_keyframe_runs = 0;  ///< runs counted below
+  double sum_log_step_ratio = 0.0;      ///< sum of log(step length after / before)
+  double sum_shift_fraction = 0.0;      ///< sum of |position after - before| / step length
+  double sum_rotation_deg = 0.0;        ///< sum of the rotation between before and after
 };
 
 /// Where a run polls its abort request (LocalBundleAdjuster::set_poll_observer).
@@ -236,6 +243,8 @@ class LocalBundleAdjuster {
   std::vector<float> level_sigma2_;
   bool deterministic_;
   std::string depth_mode_;
+  map::KeyframeId last_kf_ = map::kNoId;  ///< the keyframe the previous spin_once was for
+  std::int64_t last_kf_t_ns_ = 0;         ///< its time (a reused slot has another)
   std::atomic<bool> abort_{false};
   std::atomic<int> iterations_{0};
   LocalBaTotals totals_;

@@ -178,6 +178,31 @@ TEST(LocalBa, NoisyGraphConvergesToGroundTruthWithMetricDepth) {
   EXPECT_LT(after.rms_point_m, 0.01);
 }
 
+// summary.json backend.new_keyframe_*: a new keyframe's first run, measured against the pose
+// it was inserted with. The newest keyframe is put 30 % of its step back towards the one
+// before; the run (metric depth pins the scale) puts it back: step ratio 1 / 0.7, shift 0.3.
+// A second run for the same keyframe is not a first run.
+TEST(LocalBa, NewKeyframeShiftIsMeasuredAgainstItsInsertedPose) {
+  map::Map map(small_map());
+  const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.0, 0.0, 0.0);
+  LocalBundleAdjuster ba(opts("auto"), map, {1.0F}, true, /*metric_depth=*/true);
+  ASSERT_TRUE(ba.spin_once(s.kf[kKeyframes - 2], kK).ran);
+  EXPECT_EQ(ba.totals().new_keyframe_runs, 0U);  // no keyframe before it to measure a step from
+  const Eigen::Vector3d step =
+      s.T_w_c[kKeyframes - 1].translation() - s.T_w_c[kKeyframes - 2].translation();
+  SE3d moved = s.T_w_c[kKeyframes - 1];
+  moved.translation() -= 0.3 * step;
+  map.set_keyframe_pose(s.kf.back(), moved);
+  ASSERT_TRUE(ba.spin_once(s.kf.back(), kK).ran);
+  const LocalBaTotals& t = ba.totals();
+  ASSERT_EQ(t.new_keyframe_runs, 1U);
+  EXPECT_NEAR(std::exp(t.sum_log_step_ratio), 1.0 / 0.7, 0.02);
+  EXPECT_NEAR(t.sum_shift_fraction, 0.3 / 0.7, 0.02);  // of the step it was inserted with
+  EXPECT_LT(t.sum_rotation_deg, 0.1);
+  ASSERT_TRUE(ba.spin_once(s.kf.back(), kK).ran);
+  EXPECT_EQ(ba.totals().new_keyframe_runs, 1U);
+}
+
 // Reprojection alone leaves the scale of the free keyframes and points undetermined except
 // through the one fixed keyframe; metric 3D-3D edges pin it. With every point displaced
 // along its ray by a common factor the difference shows.
