@@ -284,8 +284,10 @@ int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) 
   std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
   const Eigen::Vector3d centre = T_c_w.inverse().translation();
   const int levels = extractor_->num_levels();
+  // Scale between pyramid levels (a one-level pyramid has no level 1 to read it from).
   const double log_scale =
-      std::log(std::max(1.0001, static_cast<double>(extractor_->level_scale(1))));
+      std::log(std::max(1.0001, levels > 1 ? static_cast<double>(extractor_->level_scale(1))
+                                           : opts_.extractor.scale_factor));
   const int window = tight ? std::max(0, opts_.match.level_window - 1) : opts_.match.level_window;
   int matches = 0;
   for (int c = 0; c < num_cand_; ++c) {

@@ -220,6 +220,20 @@ TEST(TrackerSynthetic, RgbdOrbitTracksFromTheFirstFrame) {
   EXPECT_EQ(o.steady_allocations, 0U);
 }
 
+// tracking.extractor.num_levels accepts 1: matching predicts no level then (it used to read
+// the scale of a level 1 that a one-level pyramid does not have, and abort).
+TEST(TrackerSynthetic, OneLevelPyramidTracks) {
+  Rig rig;
+  TrackingOptions topts;
+  topts.extractor.num_levels = 1;
+  const RunOutcome o = run(
+      rig, 60, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "rgbd", false, 1.0,
+      topts);
+  ASSERT_TRUE(o.initialized);
+  EXPECT_GE(o.tracked_after_init, 0.95 * o.frames_after_init);
+  EXPECT_LT(o.ate_rmse, 0.02);
+}
+
 TEST(TrackerSynthetic, FocalEstimatedFromAGuessThirtyPercentOff) {
   for (const double scale : {0.7, 1.3}) {
     Rig rig;
