@@ -268,8 +268,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
     window.push_back(covis[i].id);
   }
   // A new keyframe's tracked pose and its step from the previous run's keyframe.
-  SE3d T_w_new;
-  SE3d T_w_last;
+  SE3d T_w_new = SE3d::Identity();
+  SE3d T_w_last = SE3d::Identity();
   const bool first_run = kf != last_kf_ || map_.keyframe_t_ns(kf) != last_kf_t_ns_;
   const bool measure_step =
       first_run && last_kf_ != map::kNoId && map_.keyframe_t_ns(last_kf_) == last_kf_t_ns_ &&
@@ -279,14 +279,17 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   if (!rep.ran) return rep;
   if (first_run) {
     const double step = (T_w_new.translation() - T_w_last.translation()).norm();
-    SE3d T_w_new_after;
-    SE3d T_w_last_after;
-    if (measure_step && step > 0.0 && map_.keyframe_pose(kf, T_w_new_after) &&
-        map_.keyframe_pose(last_kf_, T_w_last_after)) {
-      const double step_after = (T_w_new_after.translation() - T_w_last_after.translation()).norm();
+    SE3d T_w_new_after = SE3d::Identity();
+    SE3d T_w_last_after = SE3d::Identity();
+    const double step_after =
+        measure_step && map_.keyframe_pose(kf, T_w_new_after) &&
+                map_.keyframe_pose(last_kf_, T_w_last_after)
+            ? (T_w_new_after.translation() - T_w_last_after.translation()).norm()
+            : 0.0;
+    if (step > 0.0 && step_after > 0.0) {
       const Eigen::AngleAxisd turn(T_w_new.linear().transpose() * T_w_new_after.linear());
       ++totals_.new_keyframe_runs;
-      totals_.sum_log_step_ratio += std::log(std::max(step_after, kMinDepth) / step);
+      totals_.sum_log_step_ratio += std::log(step_after / step);
       totals_.sum_shift_fraction +=
           (T_w_new_after.translation() - T_w_new.translation()).norm() / step;
       totals_.sum_rotation_deg += turn.angle() * kRadToDeg;
