@@ -3,8 +3,10 @@
 # the KITTI clips when ../shared/data has them) and prints one line per run plus a summary:
 # ATE of the tracked frames (trajectory.txt), of every frame re-anchored to the final map
 # (trajectory_final.txt) and of the final map's keyframes, each in % of the path length, the
-# re-anchored ATE in metres and the loops closed. Lockstep runs are deterministic: a change's effect is the difference
-# between two campaigns, run by run.
+# re-anchored ATE in metres, the loops closed and the new-keyframe step ratio (summary.json
+# backend.new_keyframe_step_ratio: how much the first local BA lengthens a new keyframe's
+# step from tracking's; 1 is no bias, needs no ground truth). Lockstep runs are deterministic:
+# a change's effect is the difference between two campaigns, run by run.
 #
 #   tools/campaign.sh [options] SET...
 #     SET: orbit   room_orbit mono, seeds 1-8
@@ -95,9 +97,10 @@ run_one() {
     v="$(sed -n "s/.*\"$1\": {[^}]*\"$2\": \([-0-9.eE+]*\).*/\1/p" <<< "$s" | head -n 1)"
     echo "${v:--}"
   }
-  printf '%-22s %9s %9s %9s %10s %6s\n' "$name" "$(field accuracy ate_pct_of_path)" \
+  printf '%-22s %9s %9s %9s %10s %6s %8s\n' "$name" "$(field accuracy ate_pct_of_path)" \
     "$(field accuracy_final ate_pct_of_path)" "$(field accuracy_keyframes ate_pct_of_path)" \
-    "$(field accuracy_final ate_rmse_m)" "$(field loop loops_closed)" >> "$RESULTS"
+    "$(field accuracy_final ate_rmse_m)" "$(field loop loops_closed)" \
+    "$(field backend new_keyframe_step_ratio)" >> "$RESULTS"
   if [ "$KEEP" -eq 0 ]; then
     find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml -delete
   fi
@@ -159,7 +162,7 @@ done
 wait || true
 
 sort -o "$RESULTS" "$RESULTS"
-printf '%-22s %9s %9s %9s %10s %6s\n' run tracked% final% keyfr% final_m loops
+printf '%-22s %9s %9s %9s %10s %6s %8s\n' run tracked% final% keyfr% final_m loops kfstep
 cat "$RESULTS"
 median="$(awk '$2 != "failed:" && $3 != "-" { print $3 }' "$RESULTS" | sort -g |
   awk '{ v[NR] = $1 } END { if (NR > 0) print v[int((NR + 1) / 2)] }')"
