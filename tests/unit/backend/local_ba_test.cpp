@@ -180,7 +180,8 @@ TEST(LocalBa, NoisyGraphConvergesToGroundTruthWithMetricDepth) {
 
 // summary.json backend.new_keyframe_*: a new keyframe's first run, measured against the pose
 // it was inserted with. The newest keyframe is put 30 % of its step back towards the one
-// before; the run (metric depth pins the scale) puts it back: step ratio 1 / 0.7, shift 0.3.
+// before; the run (metric depth pins the scale) puts it back: step ratio 1 / 0.7, and a move
+// of 0.3 steps of the true length, i.e. 0.3 / 0.7 of the step it was inserted with.
 // A second run for the same keyframe is not a first run.
 TEST(LocalBa, NewKeyframeShiftIsMeasuredAgainstItsInsertedPose) {
   map::Map map(small_map());
