@@ -170,4 +170,34 @@ Status write_final_trajectory(const std::string& dir,
   return write_file_atomic((d / "trajectory_final.txt").string(), text);
 }
 
+Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
+                    pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
+                    AccuracyReport& converged, AccuracyReport& shuffled) {
+  const std::filesystem::path d(dir);
+  const std::string gt_path = (d / "groundtruth.txt").string();
+  std::error_code ec;
+  if (dir.empty() || std::filesystem::file_size(gt_path, ec) == 0 || ec) {
+    report.note = "no ground truth from this source";
+    return Status::ok();
+  }
+  auto gt = hal::load_tum_trajectory(gt_path);
+  if (!gt.is_ok()) {
+    report.note = gt.status().message();
+    return Status::ok();
+  }
+  report = pipe.check_against_groundtruth(gt.value().poses);
+  if (!report.ran) return Status::ok();
+  const std::pair<const char*, const std::vector<StampedPose>*> files[] = {
+      {"keyframes_gt_converged.txt", &report.converged},
+      {"keyframes_gt_shuffled.txt", &report.shuffled}};
+  for (const auto& [name, poses] : files) {
+    hal::Trajectory t;
+    t.poses = *poses;
+    if (Status s = hal::save_tum_trajectory((d / name).string(), t); !s.is_ok()) return s;
+  }
+  converged = evaluate_run(dir, sensor_mode, pipe.stats(), "keyframes_gt_converged.txt");
+  shuffled = evaluate_run(dir, sensor_mode, pipe.stats(), "keyframes_gt_shuffled.txt");
+  return Status::ok();
+}
+
 }  // namespace mer::app

@@ -48,4 +48,14 @@ Status write_final_trajectory(const std::string& dir,
                               std::span<const pipeline::FinalKeyframePose> keyframes,
                               pipeline::FinalTrajectoryStats& stats);
 
+/// --gt-check, after every output is written: loads `dir`/groundtruth.txt, runs the
+/// pipeline's ground-truth check (backend/groundtruth_check.h; it changes the map), writes
+/// the keyframe poses it converged to (keyframes_gt_converged.txt) and those with shuffled
+/// keypoint errors (keyframes_gt_shuffled.txt) and scores both as keyframes_final.txt is.
+/// A source without ground truth, or a check that cannot run, leaves its reason in
+/// `report.note` and is not an error; a file that cannot be written is.
+Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
+                    pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
+                    AccuracyReport& converged, AccuracyReport& shuffled);
+
 }  // namespace mer::app

@@ -48,6 +48,9 @@ std::string usage() {
   --focal auto|fixed estimate the focal length (auto) or trust the calibration
   --final-ba         after the stream, optimize the whole graph (trajectory_final.txt
                      and keyframes_final.txt then carry its result)
+  --gt-check         after the outputs are written, check the final map's observations
+                     against the ground truth (needs --output and a source with ground
+                     truth; keyframes_gt_converged.txt, keyframes_gt_shuffled.txt)
   --print-config     print the effective configuration as YAML and exit
   --quiet            no human-readable summary on stdout
   --help, --version
@@ -91,6 +94,8 @@ Result<CliArgs> parse_cli(int argc, const char* const* argv) {
       if (s = value(v); s.is_ok()) a.mode = v;
     } else if (flag == "--final-ba") {
       a.final_ba = true;
+    } else if (flag == "--gt-check") {
+      a.gt_check = true;
     } else if (flag == "--focal") {
       if (s = value(v); s.is_ok()) a.focal = v;
     } else if (flag == "--max-frames") {
@@ -116,6 +121,9 @@ Result<CliArgs> parse_cli(int argc, const char* const* argv) {
       return invalid_argument("unknown flag '" + flag + "' (see --help)");
     }
     if (!s.is_ok()) return s;
+  }
+  if (a.gt_check && a.output_dir.empty()) {
+    return invalid_argument("flag '--gt-check' needs --output DIR (it scores files written there)");
   }
   return a;
 }

@@ -27,6 +27,7 @@ struct CliArgs {
   std::optional<std::string> mode;                ///< --mode
   bool lockstep = false;                          ///< --lockstep
   bool final_ba = false;                          ///< --final-ba
+  bool gt_check = false;                          ///< --gt-check (needs --output)
   std::optional<int> max_frames;                  ///< --max-frames
   std::optional<std::vector<double>> intrinsics;  ///< --intrinsics (4 or 8 numbers)
   std::optional<std::string> focal;               ///< --focal

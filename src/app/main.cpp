@@ -136,6 +136,15 @@ int main(int argc, char** argv) {
         if (code == 0) code = 4;
       }
     }
+    if (args.gt_check && pipe.stats().frames_processed > 0) {
+      info.gt_check_requested = true;
+      if (Status g = app::run_gt_check(args.output_dir, config.pipeline.mode, pipe, info.gt_check,
+                                       info.accuracy_gt_converged, info.accuracy_gt_shuffled);
+          !g.is_ok()) {
+        std::cerr << "mer_slam: error: --gt-check: " << g.message() << "\n";
+        if (code == 0) code = 4;
+      }
+    }
     if (!args.output_dir.empty()) {
       const std::string path = (std::filesystem::path(args.output_dir) / "summary.json").string();
       if (Status w = app::write_file_atomic(path, app::summary_json(pipe.stats(), info));

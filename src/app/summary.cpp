@@ -117,6 +117,28 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     // Kept for readers of earlier summaries: the final BA's trajectory is trajectory_final.txt.
     if (st.final_ba.ran) accuracy_json("accuracy_final_ba", info.accuracy_final);
   }
+  if (info.gt_check_requested) {
+    const backend::GroundTruthCheckReport& g = info.gt_check;
+    if (g.ran) {
+      j << "  \"gt_check\": {\"keyframes\": " << g.keyframes << ", \"points\": " << g.points
+        << ", \"observations\": " << g.observations << ", \"unprojected\": " << g.unprojected
+        << ", \"scale\": " << num(g.scale) << ", \"beyond_1_level_px\": " << num(g.beyond_1_px)
+        << ", \"beyond_2_level_px\": " << num(g.beyond_2_px) << ", \"rms_level_px\": [";
+      for (std::size_t L = 0; L < g.levels.size(); ++L) {
+        j << (L > 0 ? ", " : "") << num(g.levels[L].rms_level_px);
+      }
+      j << "], \"observations_per_level\": [";
+      for (std::size_t L = 0; L < g.levels.size(); ++L) {
+        j << (L > 0 ? ", " : "") << g.levels[L].observations;
+      }
+      j << "], \"iterations_converged\": " << g.iterations_converged
+        << ", \"iterations_shuffled\": " << g.iterations_shuffled << "},\n";
+      accuracy_json("accuracy_gt_converged", info.accuracy_gt_converged);
+      accuracy_json("accuracy_gt_shuffled", info.accuracy_gt_shuffled);
+    } else {
+      j << "  \"gt_check\": {\"note\": " << json_string(g.note) << "},\n";
+    }
+  }
   if (st.final_ba.ran) {
     const pipeline::FinalBaStats& f = st.final_ba;
     j << "  \"final_ba\": {\"keyframes\": " << f.keyframes << ", \"points\": " << f.points
@@ -276,6 +298,25 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << "  ATE (final map, every frame re-anchored" << (st.final_ba.ran ? ", after final BA" : "")
        << "): rmse " << std::setprecision(4) << a.ate_rmse_m << " m = " << std::setprecision(3)
        << a.ate_pct_of_path << " % of path\n";
+  }
+  if (info.gt_check_requested) {
+    const backend::GroundTruthCheckReport& g = info.gt_check;
+    if (!g.ran) {
+      os << "  ground-truth check: " << g.note << "\n";
+    } else {
+      os << "  ground-truth check (" << g.observations << " observations of " << g.points
+         << " points): keypoint error RMS per level";
+      for (const auto& l : g.levels) os << " " << std::setprecision(2) << l.rms_level_px;
+      os << " level px; " << std::setprecision(1) << 100.0 * g.beyond_1_px << " % beyond 1, "
+         << 100.0 * g.beyond_2_px << " % beyond 2\n";
+      const AccuracyReport& c = info.accuracy_gt_converged;
+      const AccuracyReport& s = info.accuracy_gt_shuffled;
+      if (c.available && s.available) {
+        os << "    full BA from the truth: keyframe ATE " << std::setprecision(3)
+           << c.ate_pct_of_path << " % of path; keypoint errors shuffled: " << s.ate_pct_of_path
+           << " %\n";
+      }
+    }
   }
   os << "  latency ms      p50      p90      p99      max   budget  overruns\n";
   for (const auto& l : st.latency) {

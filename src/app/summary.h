@@ -34,7 +34,11 @@ struct RunInfo {
   AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
   bool final_trajectory_written = false;            ///< trajectory_final.txt was written
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
-  AccuracyReport accuracy_final;  ///< ATE of trajectory_final.txt (frames on the final map)
+  AccuracyReport accuracy_final;    ///< ATE of trajectory_final.txt (frames on the final map)
+  bool gt_check_requested = false;  ///< --gt-check
+  backend::GroundTruthCheckReport gt_check;  ///< its result (poses not kept)
+  AccuracyReport accuracy_gt_converged;      ///< ATE of keyframes_gt_converged.txt
+  AccuracyReport accuracy_gt_shuffled;       ///< ATE of keyframes_gt_shuffled.txt
 };
 
 /// Renders summary.json.

@@ -413,6 +413,14 @@ void Map::set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale) {
   write_pose(kf, T_w_c, scale);
 }
 
+bool Map::set_keypoint_position_offline(KeyframeId kf, std::uint32_t kp, float x, float y) {
+  if (!valid_keypoint(kf, kp) || !std::isfinite(x) || !std::isfinite(y)) return false;
+  features::Keypoint& k = kf_keypoints_[kp_index(kf, kp)];
+  k.x = x;
+  k.y = y;
+  return true;
+}
+
 void Map::set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence) {
   if (!valid_keypoint(kf, kp)) return;
   kf_depth_[kp_index(kf, kp)].store(depth, std::memory_order_relaxed);

@@ -227,6 +227,11 @@ class Map {
   void set_point_position(PointId p, const Eigen::Vector3d& p_w);
   /// Sets a keyframe pose and its similarity scale (Sim3 corrections; stored, not applied).
   void set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale = 1.0);
+  /// Moves keypoint kp of kf to (x, y), level-0 px. Keypoints are otherwise immutable once a
+  /// keyframe is published and readers hold no lock on them: offline use only, with no
+  /// reader running (the ground-truth check, backend/groundtruth_check.h). False for an
+  /// unknown keyframe or keypoint, or a non-finite position.
+  bool set_keypoint_position_offline(KeyframeId kf, std::uint32_t kp, float x, float y);
   /// Records a world-frame correction (a loop closure moved the map by S_new_old around the
   /// newest keyframes): the cumulative correction becomes S_new_old * previous. Readers that
   /// keep poses of their own (the tracker's last pose) move them by the part they missed.

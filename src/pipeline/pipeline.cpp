@@ -237,6 +237,16 @@ std::vector<StampedPose> Pipeline::live_keyframe_poses() const {
   return poses;
 }
 
+backend::GroundTruthCheckReport Pipeline::check_against_groundtruth(
+    std::span<const StampedPose> groundtruth) {
+  // Every stage has stopped: this thread is the map's only user now.
+  constexpr std::int64_t kMaxDtNs = 1'000'000;  // estimate and truth share frame timestamps
+  constexpr std::uint64_t kShuffleSeed = 1;
+  return backend::check_against_groundtruth(*map_, *ba_, tracker_->intrinsics(), groundtruth,
+                                            kMaxDtNs, config_.backend.full_max_iterations,
+                                            kShuffleSeed);
+}
+
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
   return resolve_keyframe_poses(live_keyframe_poses(), culler_->lineage());
 }

@@ -31,9 +31,11 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
+#include "backend/groundtruth_check.h"
 #include "backend/local_ba.h"
 #include "backend/loop_closer.h"
 #include "backend/map_culling.h"
@@ -176,6 +178,10 @@ class Pipeline {
   /// After run(): every keyframe's pose in the final map, the removed ones through their
   /// lineage (final_trajectory.h), sorted by time.
   std::vector<FinalKeyframePose> final_keyframe_poses() const;
+  /// After run(), once every output is written: checks the final map's observations against
+  /// `groundtruth` (backend/groundtruth_check.h). Changes the map for good.
+  backend::GroundTruthCheckReport check_against_groundtruth(
+      std::span<const StampedPose> groundtruth);
 
  private:
   Status run_lockstep();

@@ -64,6 +64,43 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
   EXPECT_EQ(static_cast<std::string>(s["run_mode"]), "lockstep");
 }
 
+// --gt-check runs after every output is written: the files of a run without it are
+// unchanged, the two trajectories of the check are written and scored, and summary.json
+// gives the keypoint errors against the truth.
+TEST(MerSlamSynthetic, GroundTruthCheckLeavesTheRunsOutputsAndScoresItsOwn) {
+  const auto plain = fresh_dir("mer_e2e_gt_check_plain");
+  const auto checked = fresh_dir("mer_e2e_gt_check");
+  for (const auto& [d, flag] : {std::pair{plain, ""}, std::pair{checked, " --gt-check"}}) {
+    const auto r = run_command(quote(kExe) + " --lockstep --mode rgbd --max-frames 120 --quiet" +
+                               flag + " --output " + quote(d.string()));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  for (const char* f : {"trajectory.txt", "keyframes_final.txt", "trajectory_final.txt"}) {
+    EXPECT_EQ(read_text((plain / f).string()), read_text((checked / f).string())) << f;
+  }
+  cv::FileStorage s = open_summary(checked);
+  ASSERT_TRUE(s.isOpened());
+  const int keyframes = static_cast<int>(s["gt_check"]["keyframes"]);
+  EXPECT_GE(keyframes, 2);
+  EXPECT_GT(static_cast<int>(s["gt_check"]["observations"]), 0);
+  const cv::FileNode rms = s["gt_check"]["rms_level_px"];
+  ASSERT_TRUE(rms.isSeq());
+  ASSERT_GT(rms.size(), 0U);
+  const double rms0 = static_cast<double>(rms[0]);
+  EXPECT_GT(rms0, 0.05) << "rendered keypoints are not exact";
+  EXPECT_LT(rms0, 1.0);
+  for (const char* f : {"keyframes_gt_converged.txt", "keyframes_gt_shuffled.txt"}) {
+    EXPECT_EQ(count_lines((checked / f).string()), keyframes + 1) << f;  // and a header
+  }
+  for (const char* key : {"accuracy_gt_converged", "accuracy_gt_shuffled"}) {
+    EXPECT_EQ(static_cast<int>(s[key]["pairs"]), keyframes) << key;
+    const double ate = static_cast<double>(s[key]["ate_rmse_m"]);
+    EXPECT_GT(ate, 0.0) << key;
+    EXPECT_LT(ate, 0.02) << key << ": RGB-D synthetic started at the truth";
+  }
+  EXPECT_TRUE(open_summary(plain)["gt_check"].empty());
+}
+
 // --final-ba: the whole graph is optimized after the stream; trajectory.txt stays what
 // tracking wrote (byte-identical to a run without the flag). Every run writes
 // trajectory_final.txt: every tracked frame re-anchored to the final map (the final BA's

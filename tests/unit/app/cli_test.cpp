@@ -85,7 +85,8 @@ TEST(CliParse, BadValuesNameTheFlag) {
                                              {"mer_slam", "--max-frames"},
                                              {"mer_slam", "--intrinsics", "1,2,3"},
                                              {"mer_slam", "--intrinsics", "1,2,x,4"},
-                                             {"mer_slam", "--output", "--lockstep"}}) {
+                                             {"mer_slam", "--output", "--lockstep"},
+                                             {"mer_slam", "--gt-check"}}) {
     auto r = parse_cli(static_cast<int>(argv.size()), argv.data());
     ASSERT_FALSE(r.is_ok()) << argv[1];
     EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument);

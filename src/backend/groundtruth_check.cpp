@@ -1,0 +1,280 @@
+#include "backend/groundtruth_check.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <utility>
+
+#include <Eigen/Geometry>
+
+#include "features/keypoint.h"
+
+namespace mer::backend {
+namespace {
+
+constexpr int kRefitIterations = 10;       // Gauss-Newton steps of a point re-fit
+constexpr double kMaxRefitMove = 0.1;      // a re-fit moving a point farther than this fraction
+                                           // of its distance to its reference camera is
+                                           // ill-posed (little parallax): not taken
+constexpr double kMinDepth = 1e-6;         // a point nearer the camera plane is left out
+constexpr double kRmsCutLevelPx = 5.0;     // errors beyond this are counted, not in the RMS
+constexpr double kMinCentreSpread = 1e-9;  // ground-truth centres closer than this: no motion
+constexpr std::size_t kMaxLevels = 32;     // pyramid levels accounted (more share the last)
+
+// One observation of a re-fitted point: its ground-truth projection and the keypoint's error
+// against it, level-0 px.
+struct CheckedObservation {
+  map::KeyframeId kf = map::kNoId;
+  std::uint32_t kp = 0;
+  int level = 0;
+  Eigen::Vector2d truth_uv = Eigen::Vector2d::Zero();
+  Eigen::Vector2d error = Eigen::Vector2d::Zero();
+};
+
+// splitmix64: a small, seedable generator (the shuffle must not depend on the platform).
+std::uint64_t next_random(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ULL);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+  return z ^ (z >> 31);
+}
+
+const StampedPose* nearest(std::span<const StampedPose> gt, std::int64_t t_ns,
+                           std::int64_t max_dt_ns) {
+  auto it = std::lower_bound(gt.begin(), gt.end(), t_ns,
+                             [](const StampedPose& p, std::int64_t t) { return p.t_ns < t; });
+  const StampedPose* best = nullptr;
+  std::int64_t best_dt = std::numeric_limits<std::int64_t>::max();
+  for (auto c : {it, it == gt.begin() ? it : std::prev(it)}) {
+    if (c == gt.end()) continue;
+    const std::int64_t dt = std::abs(c->t_ns - t_ns);
+    if (dt <= max_dt_ns && dt < best_dt) {
+      best = &*c;
+      best_dt = dt;
+    }
+  }
+  return best;
+}
+
+std::vector<StampedPose> live_poses(const map::Map& map) {
+  std::vector<StampedPose> out;
+  for (map::KeyframeId id = 0; id < map.num_keyframes(); ++id) {
+    SE3d T;
+    if (map.keyframe_is_live(id) && map.keyframe_pose(id, T)) {
+      out.push_back({map.keyframe_t_ns(id), T});
+    }
+  }
+  std::sort(out.begin(), out.end(),
+            [](const StampedPose& a, const StampedPose& b) { return a.t_ns < b.t_ns; });
+  return out;
+}
+
+// Gauss-Newton on the sigma-weighted reprojection error of X over the observations, with
+// the keyframes where the map has them. False when X ends behind a camera or degenerate.
+bool refit_point(const map::Map& map, const geometry::Pinhole& K,
+                 std::span<const std::pair<map::KeyframeId, std::uint32_t>> obs,
+                 Eigen::Vector3d& X) {
+  for (int it = 0; it < kRefitIterations; ++it) {
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    for (const auto& [kf, kp_id] : obs) {
+      SE3d T_w_c;
+      if (!map.keyframe_pose(kf, T_w_c)) return false;
+      const features::Keypoint& kp = map.keyframe_keypoints(kf)[kp_id];
+      const Eigen::Matrix3d R_c_w = T_w_c.linear().transpose();
+      const Eigen::Vector3d p_c = R_c_w * (X - T_w_c.translation());
+      if (p_c.z() < kMinDepth) return false;
+      const Eigen::Vector2d r = K.project(p_c) - Eigen::Vector2d(kp.x, kp.y);
+      const double iz = 1.0 / p_c.z();
+      Eigen::Matrix<double, 2, 3> d_uv_d_pc;
+      d_uv_d_pc << K.fx * iz, 0.0, -K.fx * p_c.x() * iz * iz, 0.0, K.fy * iz,
+          -K.fy * p_c.y() * iz * iz;
+      const Eigen::Matrix<double, 2, 3> J = d_uv_d_pc * R_c_w;
+      const double w = 1.0 / (static_cast<double>(kp.scale) * kp.scale);
+      H += w * J.transpose() * J;
+      g += w * J.transpose() * r;
+    }
+    const Eigen::Vector3d step = H.ldlt().solve(g);
+    if (!step.allFinite()) return false;
+    X -= step;
+    if (step.norm() < 1e-12 * std::max(1.0, X.norm())) break;
+  }
+  return X.allFinite();
+}
+
+}  // namespace
+
+GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjuster& ba,
+                                                 const geometry::Pinhole& K,
+                                                 std::span<const StampedPose> groundtruth,
+                                                 std::int64_t max_dt_ns, int max_iterations,
+                                                 std::uint64_t seed) {
+  GroundTruthCheckReport rep;
+  // 1. The keyframes, their ground truth, and the similarity ground truth -> map.
+  std::vector<map::KeyframeId> ids;
+  std::vector<SE3d> est;
+  std::vector<SE3d> gt;
+  for (map::KeyframeId id = 0; id < map.num_keyframes(); ++id) {
+    SE3d T;
+    if (!map.keyframe_is_live(id) || !map.keyframe_pose(id, T)) continue;
+    const StampedPose* g = nearest(groundtruth, map.keyframe_t_ns(id), max_dt_ns);
+    if (g == nullptr) {
+      rep.note =
+          "keyframe of frame " + std::to_string(map.keyframe_seq(id)) + " has no ground-truth pose";
+      return rep;
+    }
+    ids.push_back(id);
+    est.push_back(T);
+    gt.push_back(g->T_w_c);
+  }
+  rep.keyframes = static_cast<int>(ids.size());
+  if (ids.size() < 3) {
+    rep.note = "fewer than 3 keyframes";
+    return rep;
+  }
+  Eigen::Matrix3Xd src(3, ids.size());
+  Eigen::Matrix3Xd dst(3, ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    src.col(static_cast<Eigen::Index>(i)) = gt[i].translation();
+    dst.col(static_cast<Eigen::Index>(i)) = est[i].translation();
+  }
+  const Eigen::Vector3d centre = src.rowwise().mean();
+  if ((src.colwise() - centre).squaredNorm() < kMinCentreSpread) {
+    rep.note = "the ground-truth keyframe centres do not move";
+    return rep;
+  }
+  const Eigen::Matrix4d S = Eigen::umeyama(src, dst, true);
+  const double s = S.block<3, 1>(0, 0).norm();
+  if (!S.allFinite() || !(s > 0.0)) {
+    rep.note = "no similarity maps the ground truth onto the map";
+    return rep;
+  }
+  rep.scale = s;
+  const Eigen::Matrix3d R = S.block<3, 3>(0, 0) / s;
+  const Eigen::Vector3d t = S.block<3, 1>(0, 3);
+  std::map<map::KeyframeId, std::pair<SE3d, SE3d>> moves;  // id -> (map pose, truth in map)
+  for (std::size_t i = 0; i < ids.size(); ++i) {
+    SE3d truth = SE3d::Identity();
+    truth.linear() = R * gt[i].linear();
+    truth.translation() = s * (R * gt[i].translation()) + t;
+    moves[ids[i]] = {est[i], truth};
+  }
+
+  // Points ride with their reference keyframe; then the keyframes move.
+  std::vector<map::PointId> points;
+  for (map::PointId p = 0; p < map.num_points(); ++p) {
+    map::PointView v;
+    if (map.point_is_bad(p) || !map.read_point(p, v)) continue;
+    const auto m = moves.find(v.ref_keyframe);
+    if (m == moves.end()) continue;
+    const Eigen::Vector3d p_c = m->second.first.inverse() * v.p_w;
+    map.set_point_position(p, m->second.second * p_c);
+    points.push_back(p);
+  }
+  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.second);
+
+  // 2. Re-fit each point at the truth; its observations' errors.
+  std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(
+      static_cast<std::size_t>(std::max(1, map.options().max_observations_per_point)));
+  std::vector<CheckedObservation> checked;
+  std::vector<std::pair<map::PointId, Eigen::Vector3d>> fitted;
+  std::array<double, kMaxLevels> sum2{};
+  std::array<int, kMaxLevels> count{};
+  std::array<int, kMaxLevels> in_rms{};
+  int beyond_1 = 0;
+  int beyond_2 = 0;
+  for (const map::PointId p : points) {
+    const std::size_t n = map.point_observations(p, obs);
+    if (n < 2) continue;
+    map::PointView v;
+    if (!map.read_point(p, v)) continue;
+    Eigen::Vector3d X = v.p_w;
+    const std::span<const std::pair<map::KeyframeId, std::uint32_t>> o(obs.data(), n);
+    SE3d T_ref;
+    if (!map.keyframe_pose(v.ref_keyframe, T_ref)) continue;
+    // An ill-posed re-fit keeps the position the point rode to.
+    if (!refit_point(map, K, o, X) ||
+        (X - v.p_w).norm() > kMaxRefitMove * (v.p_w - T_ref.translation()).norm()) {
+      X = v.p_w;
+    }
+    map.set_point_position(p, X);
+    fitted.emplace_back(p, X);
+    ++rep.points;
+    for (const auto& [kf, kp_id] : o) {
+      SE3d T_w_c;
+      map.keyframe_pose(kf, T_w_c);
+      const features::Keypoint& kp = map.keyframe_keypoints(kf)[kp_id];
+      const Eigen::Vector3d p_c = T_w_c.inverse() * X;
+      if (p_c.z() < kMinDepth) {  // no projection: keeps its keypoint
+        ++rep.unprojected;
+        continue;
+      }
+      CheckedObservation c;
+      c.kf = kf;
+      c.kp = kp_id;
+      c.level = std::clamp(static_cast<int>(kp.level), 0, static_cast<int>(kMaxLevels) - 1);
+      c.truth_uv = K.project(p_c);
+      c.error = Eigen::Vector2d(kp.x, kp.y) - c.truth_uv;
+      const double e_level = c.error.norm() / static_cast<double>(kp.scale);
+      beyond_1 += e_level > 1.0 ? 1 : 0;
+      beyond_2 += e_level > 2.0 ? 1 : 0;
+      const auto L = static_cast<std::size_t>(c.level);
+      ++count[L];
+      if (e_level <= kRmsCutLevelPx) {
+        sum2[L] += c.error.squaredNorm() / (static_cast<double>(kp.scale) * kp.scale);
+        ++in_rms[L];
+      }
+      checked.push_back(c);
+    }
+  }
+  rep.observations = static_cast<int>(checked.size());
+  if (checked.empty()) {
+    rep.note = "no point with two observations";
+    return rep;
+  }
+  rep.beyond_1_px = static_cast<double>(beyond_1) / static_cast<double>(checked.size());
+  rep.beyond_2_px = static_cast<double>(beyond_2) / static_cast<double>(checked.size());
+  std::size_t top = 0;
+  for (std::size_t L = 0; L < kMaxLevels; ++L) top = count[L] > 0 ? L + 1 : top;
+  for (std::size_t L = 0; L < top; ++L) {
+    GroundTruthLevelError e;
+    e.observations = count[L];
+    e.rms_level_px = in_rms[L] > 0 ? std::sqrt(sum2[L] / (2.0 * in_rms[L])) : 0.0;
+    rep.levels.push_back(e);
+  }
+
+  // 3. The full BA from the truth, on the map's own observations.
+  LocalBaReport r = ba.optimize_full(K, max_iterations);
+  rep.iterations_converged = r.iterations;
+  rep.converged = live_poses(map);
+
+  // 4. Errors shuffled within each level; truth again; the full BA again.
+  std::array<std::vector<Eigen::Vector2d>, kMaxLevels> pool;
+  for (const CheckedObservation& c : checked) {
+    pool[static_cast<std::size_t>(c.level)].push_back(c.error);
+  }
+  std::uint64_t state = seed;
+  for (auto& errors : pool) {
+    for (std::size_t i = errors.size(); i > 1; --i) {
+      std::swap(errors[i - 1], errors[next_random(state) % i]);
+    }
+  }
+  std::array<std::size_t, kMaxLevels> used{};
+  for (const CheckedObservation& c : checked) {
+    const auto L = static_cast<std::size_t>(c.level);
+    const Eigen::Vector2d uv = c.truth_uv + pool[L][used[L]++];
+    map.set_keypoint_position_offline(c.kf, c.kp, static_cast<float>(uv.x()),
+                                      static_cast<float>(uv.y()));
+  }
+  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.second);
+  for (const auto& [p, X] : fitted) map.set_point_position(p, X);
+  r = ba.optimize_full(K, max_iterations);
+  rep.iterations_shuffled = r.iterations;
+  rep.shuffled = live_poses(map);
+  rep.ran = true;
+  return rep;
+}
+
+}  // namespace mer::backend
