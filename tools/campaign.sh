@@ -5,8 +5,10 @@
 # (trajectory_final.txt) and of the final map's keyframes, each in % of the path length, the
 # re-anchored ATE in metres, the loops closed and the new-keyframe step ratio (summary.json
 # backend.new_keyframe_step_ratio: how much the first local BA lengthens a new keyframe's
-# step from tracking's; 1 is no bias, needs no ground truth). Lockstep runs are deterministic:
-# a change's effect is the difference between two campaigns, run by run.
+# step from tracking's; 1 is no bias, needs no ground truth) and, with --gt-check, the
+# keyframe ATE of the full BA started at the truth and of the same with the keypoint errors
+# shuffled (mer_slam --gt-check; '-' without it). Lockstep runs are deterministic: a change's
+# effect is the difference between two campaigns, run by run.
 #
 #   tools/campaign.sh [options] SET...
 #     SET: orbit   room_orbit mono, seeds 1-8
@@ -28,6 +30,8 @@
 #     --max-frames N    stop every run after N frames (a quick check of the campaign itself)
 #     --seeds A-B       seeds A to B for orbit, loop and hall instead of their defaults (seeds
 #                       not used to choose a setting: a check that a change generalizes)
+#     --gt-check        run mer_slam --gt-check: what each map's observations allow (columns
+#                       gtconv% and gtshuf%, and their geometric means)
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -39,6 +43,7 @@ DIVERGED=2.0
 KEEP=0
 MAX_FRAMES=()
 SEEDS=""
+GT_CHECK=()
 SHARED="$ROOT/../shared/data"
 
 usage() { sed -n '2,/^[^#]/{/^#/s/^# \{0,1\}//p}' "${BASH_SOURCE[0]}"; exit "${1:-2}"; }
@@ -55,6 +60,7 @@ while [ $# -gt 0 ]; do
     --keep) KEEP=1; shift ;;
     --max-frames) MAX_FRAMES=(--max-frames "${2:?--max-frames needs a number}"); shift 2 ;;
     --seeds) SEEDS="${2:?--seeds needs A-B}"; shift 2 ;;
+    --gt-check) GT_CHECK=(--gt-check); shift ;;
     -h|--help) usage 0 ;;
     orbit|loop|hall|kitti|robust) sets+=("$1"); shift ;;
     *) die "unknown argument '$1' (see --help)" ;;
@@ -86,7 +92,7 @@ run_one() {
   # (the run's YAML may lack its final newline: command substitution drops it)
   if [ -n "$EXTRA" ]; then printf '\n' >> "$dir/config.yaml" && cat "$EXTRA" >> "$dir/config.yaml"; fi
   if ! "$BIN" --input "$input" --lockstep --quiet --config "$dir/config.yaml" --output "$dir" \
-      "${MAX_FRAMES[@]}" > "$dir/log.txt" 2>&1; then
+      "${MAX_FRAMES[@]}" "${GT_CHECK[@]}" > "$dir/log.txt" 2>&1; then
     echo "$name failed: see $dir/log.txt" >> "$RESULTS"
     return
   fi
@@ -97,10 +103,12 @@ run_one() {
     v="$(sed -n "s/.*\"$1\": {[^}]*\"$2\": \([-0-9.eE+]*\).*/\1/p" <<< "$s" | head -n 1)"
     echo "${v:--}"
   }
-  printf '%-22s %9s %9s %9s %10s %6s %8s\n' "$name" "$(field accuracy ate_pct_of_path)" \
-    "$(field accuracy_final ate_pct_of_path)" "$(field accuracy_keyframes ate_pct_of_path)" \
-    "$(field accuracy_final ate_rmse_m)" "$(field loop loops_closed)" \
-    "$(field backend new_keyframe_step_ratio)" >> "$RESULTS"
+  printf '%-22s %9s %9s %9s %10s %6s %8s %8s %8s\n' "$name" \
+    "$(field accuracy ate_pct_of_path)" "$(field accuracy_final ate_pct_of_path)" \
+    "$(field accuracy_keyframes ate_pct_of_path)" "$(field accuracy_final ate_rmse_m)" \
+    "$(field loop loops_closed)" "$(field backend new_keyframe_step_ratio)" \
+    "$(field accuracy_gt_converged ate_pct_of_path)" \
+    "$(field accuracy_gt_shuffled ate_pct_of_path)" >> "$RESULTS"
   if [ "$KEEP" -eq 0 ]; then
     find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml -delete
   fi
@@ -162,7 +170,8 @@ done
 wait || true
 
 sort -o "$RESULTS" "$RESULTS"
-printf '%-22s %9s %9s %9s %10s %6s %8s\n' run tracked% final% keyfr% final_m loops kfstep
+printf '%-22s %9s %9s %9s %10s %6s %8s %8s %8s\n' run tracked% final% keyfr% final_m loops kfstep \
+  gtconv% gtshuf%
 cat "$RESULTS"
 median="$(awk '$2 != "failed:" && $3 != "-" { print $3 }' "$RESULTS" | sort -g |
   awk '{ v[NR] = $1 } END { if (NR > 0) print v[int((NR + 1) / 2)] }')"
@@ -179,3 +188,11 @@ awk -v lim="$DIVERGED" -v median="$median" '
     printf "\n"
     if (div > 0) print "diverged:" names
   }' "$RESULTS"
+if [ ${#GT_CHECK[@]} -gt 0 ]; then
+  awk '$2 != "failed:" && $8 != "-" && $9 != "-" { n++; c += log($8); s += log($9) }
+    END {
+      if (n == 0) { print "ground-truth check: no run checked"; exit }
+      printf "ground-truth check: %d runs, geometric mean %.3f %% from the truth, %.3f %% with the keypoint errors shuffled\n",
+             n, exp(c / n), exp(s / n)
+    }' "$RESULTS"
+fi

@@ -174,8 +174,11 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
                     pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
                     AccuracyReport& converged, AccuracyReport& shuffled) {
   const std::filesystem::path d(dir);
-  const std::string gt_path = (d / "groundtruth.txt").string();
+  constexpr std::array<const char*, 2> kFiles{"keyframes_gt_converged.txt",
+                                              "keyframes_gt_shuffled.txt"};
   std::error_code ec;
+  for (const char* name : kFiles) std::filesystem::remove(d / name, ec);  // no stale result
+  const std::string gt_path = (d / "groundtruth.txt").string();
   if (dir.empty() || std::filesystem::file_size(gt_path, ec) == 0 || ec) {
     report.note = "no ground truth from this source";
     return Status::ok();
@@ -187,16 +190,18 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
   }
   report = pipe.check_against_groundtruth(gt.value().poses);
   if (!report.ran) return Status::ok();
-  const std::pair<const char*, const std::vector<StampedPose>*> files[] = {
-      {"keyframes_gt_converged.txt", &report.converged},
-      {"keyframes_gt_shuffled.txt", &report.shuffled}};
-  for (const auto& [name, poses] : files) {
+  const std::array<const std::vector<StampedPose>*, 2> poses{&report.converged, &report.shuffled};
+  const std::array<AccuracyReport*, 2> scores{&converged, &shuffled};
+  converged.note = shuffled.note = "not written";
+  for (std::size_t i = 0; i < kFiles.size(); ++i) {
     hal::Trajectory t;
-    t.poses = *poses;
-    if (Status s = hal::save_tum_trajectory((d / name).string(), t); !s.is_ok()) return s;
+    t.poses = *poses[i];
+    if (Status s = hal::save_tum_trajectory((d / kFiles[i]).string(), t); !s.is_ok()) {
+      scores[i]->note = "not written: " + s.message();
+      return s;
+    }
+    *scores[i] = evaluate_run(dir, sensor_mode, pipe.stats(), kFiles[i]);
   }
-  converged = evaluate_run(dir, sensor_mode, pipe.stats(), "keyframes_gt_converged.txt");
-  shuffled = evaluate_run(dir, sensor_mode, pipe.stats(), "keyframes_gt_shuffled.txt");
   return Status::ok();
 }
 

@@ -136,11 +136,18 @@ int main(int argc, char** argv) {
         if (code == 0) code = 4;
       }
     }
-    if (args.gt_check && pipe.stats().frames_processed > 0) {
+    if (args.gt_check) {
       info.gt_check_requested = true;
-      if (Status g = app::run_gt_check(args.output_dir, config.pipeline.mode, pipe, info.gt_check,
-                                       info.accuracy_gt_converged, info.accuracy_gt_shuffled);
-          !g.is_ok()) {
+      Status g = Status::ok();
+      if (pipe.stats().frames_processed == 0) {
+        info.gt_check.note = "no frame processed";
+      } else if (info.stopped_by_signal) {
+        info.gt_check.note = "stopped by a signal";  // the summary is due now
+      } else {
+        g = app::run_gt_check(args.output_dir, config.pipeline.mode, pipe, info.gt_check,
+                              info.accuracy_gt_converged, info.accuracy_gt_shuffled);
+      }
+      if (!g.is_ok()) {
         std::cerr << "mer_slam: error: --gt-check: " << g.message() << "\n";
         if (code == 0) code = 4;
       }

@@ -121,9 +121,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     const backend::GroundTruthCheckReport& g = info.gt_check;
     if (g.ran) {
       j << "  \"gt_check\": {\"keyframes\": " << g.keyframes << ", \"points\": " << g.points
-        << ", \"observations\": " << g.observations << ", \"unprojected\": " << g.unprojected
-        << ", \"scale\": " << num(g.scale) << ", \"beyond_1_level_px\": " << num(g.beyond_1_px)
-        << ", \"beyond_2_level_px\": " << num(g.beyond_2_px) << ", \"rms_level_px\": [";
+        << ", \"refit_rejected\": " << g.refit_rejected << ", \"observations\": " << g.observations
+        << ", \"unprojected\": " << g.unprojected << ", \"scale\": " << num(g.scale)
+        << ", \"beyond_1_level_px\": " << num(g.beyond_1_level_px)
+        << ", \"beyond_2_level_px\": " << num(g.beyond_2_level_px) << ", \"rms_level_px\": [";
       for (std::size_t L = 0; L < g.levels.size(); ++L) {
         j << (L > 0 ? ", " : "") << num(g.levels[L].rms_level_px);
       }
@@ -307,8 +308,8 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
       os << "  ground-truth check (" << g.observations << " observations of " << g.points
          << " points): keypoint error RMS per level";
       for (const auto& l : g.levels) os << " " << std::setprecision(2) << l.rms_level_px;
-      os << " level px; " << std::setprecision(1) << 100.0 * g.beyond_1_px << " % beyond 1, "
-         << 100.0 * g.beyond_2_px << " % beyond 2\n";
+      os << " level px; " << std::setprecision(1) << 100.0 * g.beyond_1_level_px << " % beyond 1, "
+         << 100.0 * g.beyond_2_level_px << " % beyond 2\n";
       const AccuracyReport& c = info.accuracy_gt_converged;
       const AccuracyReport& s = info.accuracy_gt_shuffled;
       if (c.available && s.available) {

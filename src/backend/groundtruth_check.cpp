@@ -3,8 +3,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
+#include <iterator>
 #include <limits>
 #include <map>
+#include <numbers>
 #include <utility>
 
 #include <Eigen/Geometry>
@@ -14,14 +17,13 @@
 namespace mer::backend {
 namespace {
 
-constexpr int kRefitIterations = 10;       // Gauss-Newton steps of a point re-fit
-constexpr double kMaxRefitMove = 0.1;      // a re-fit moving a point farther than this fraction
-                                           // of its distance to its reference camera is
-                                           // ill-posed (little parallax): not taken
-constexpr double kMinDepth = 1e-6;         // a point nearer the camera plane is left out
-constexpr double kRmsCutLevelPx = 5.0;     // errors beyond this are counted, not in the RMS
-constexpr double kMinCentreSpread = 1e-9;  // ground-truth centres closer than this: no motion
-constexpr std::size_t kMaxLevels = 32;     // pyramid levels accounted (more share the last)
+constexpr int kRefitIterations = 10;         // Gauss-Newton steps of a point re-fit
+constexpr double kMinDepth = 1e-6;           // a point nearer the camera plane is left out
+constexpr double kRmsCutLevelPx = 5.0;       // errors beyond this are counted, not in the RMS
+constexpr double kMinCentreSpread2 = 1e-12;  // sum of squared offsets of the ground-truth
+                                             // centres from their mean below this (m^2): no
+                                             // motion
+constexpr std::size_t kMaxLevels = 32;       // pyramid levels accounted (more share the last)
 
 // One observation of a re-fitted point: its ground-truth projection and the keypoint's error
 // against it, level-0 px.
@@ -104,15 +106,38 @@ bool refit_point(const map::Map& map, const geometry::Pinhole& K,
   return X.allFinite();
 }
 
+// Largest angle between two of the rays from the observing keyframes' centres to X, degrees.
+double max_parallax_deg(const map::Map& map,
+                        std::span<const std::pair<map::KeyframeId, std::uint32_t>> obs,
+                        const Eigen::Vector3d& X) {
+  double min_cos = 1.0;
+  for (std::size_t i = 0; i < obs.size(); ++i) {
+    SE3d Ti;
+    if (!map.keyframe_pose(obs[i].first, Ti)) continue;
+    const Eigen::Vector3d ri = (X - Ti.translation()).normalized();
+    for (std::size_t j = i + 1; j < obs.size(); ++j) {
+      SE3d Tj;
+      if (!map.keyframe_pose(obs[j].first, Tj)) continue;
+      min_cos = std::min(min_cos, ri.dot((X - Tj.translation()).normalized()));
+    }
+  }
+  return std::acos(std::clamp(min_cos, -1.0, 1.0)) * 180.0 / std::numbers::pi;
+}
+
+struct KeyframeMove {
+  SE3d T_w_c_map;    // where the run left it
+  SE3d T_w_c_truth;  // its ground truth in the map frame
+};
+
 }  // namespace
 
 GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjuster& ba,
                                                  const geometry::Pinhole& K,
                                                  std::span<const StampedPose> groundtruth,
-                                                 std::int64_t max_dt_ns, int max_iterations,
-                                                 std::uint64_t seed) {
+                                                 std::int64_t max_dt_ns, bool with_scale,
+                                                 int max_iterations, std::uint64_t seed) {
   GroundTruthCheckReport rep;
-  // 1. The keyframes, their ground truth, and the similarity ground truth -> map.
+  // 1. The keyframes, their ground truth, and the alignment ground truth -> map.
   std::vector<map::KeyframeId> ids;
   std::vector<SE3d> est;
   std::vector<SE3d> gt;
@@ -141,45 +166,44 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
     dst.col(static_cast<Eigen::Index>(i)) = est[i].translation();
   }
   const Eigen::Vector3d centre = src.rowwise().mean();
-  if ((src.colwise() - centre).squaredNorm() < kMinCentreSpread) {
+  if ((src.colwise() - centre).squaredNorm() < kMinCentreSpread2) {
     rep.note = "the ground-truth keyframe centres do not move";
     return rep;
   }
-  const Eigen::Matrix4d S = Eigen::umeyama(src, dst, true);
-  const double s = S.block<3, 1>(0, 0).norm();
-  if (!S.allFinite() || !(s > 0.0)) {
-    rep.note = "no similarity maps the ground truth onto the map";
+  const Eigen::Matrix4d S_map_gt = Eigen::umeyama(src, dst, with_scale);
+  const double scale = S_map_gt.block<3, 1>(0, 0).norm();
+  if (!S_map_gt.allFinite() || !(scale > 0.0)) {
+    rep.note = "no alignment maps the ground truth onto the map";
     return rep;
   }
-  rep.scale = s;
-  const Eigen::Matrix3d R = S.block<3, 3>(0, 0) / s;
-  const Eigen::Vector3d t = S.block<3, 1>(0, 3);
-  std::map<map::KeyframeId, std::pair<SE3d, SE3d>> moves;  // id -> (map pose, truth in map)
+  rep.scale = scale;
+  const Eigen::Matrix3d R_map_gt = S_map_gt.block<3, 3>(0, 0) / scale;
+  const Eigen::Vector3d t_map_gt = S_map_gt.block<3, 1>(0, 3);
+  std::map<map::KeyframeId, KeyframeMove> moves;
   for (std::size_t i = 0; i < ids.size(); ++i) {
-    SE3d truth = SE3d::Identity();
-    truth.linear() = R * gt[i].linear();
-    truth.translation() = s * (R * gt[i].translation()) + t;
-    moves[ids[i]] = {est[i], truth};
+    SE3d T_w_c_truth = SE3d::Identity();
+    T_w_c_truth.linear() = R_map_gt * gt[i].linear();
+    T_w_c_truth.translation() = scale * (R_map_gt * gt[i].translation()) + t_map_gt;
+    moves[ids[i]] = {est[i], T_w_c_truth};
   }
 
-  // Points ride with their reference keyframe; then the keyframes move.
+  // Points ride with their reference keyframe (read before it moves); then the keyframes move.
   std::vector<map::PointId> points;
   for (map::PointId p = 0; p < map.num_points(); ++p) {
     map::PointView v;
     if (map.point_is_bad(p) || !map.read_point(p, v)) continue;
     const auto m = moves.find(v.ref_keyframe);
     if (m == moves.end()) continue;
-    const Eigen::Vector3d p_c = m->second.first.inverse() * v.p_w;
-    map.set_point_position(p, m->second.second * p_c);
+    const Eigen::Vector3d p_c = m->second.T_w_c_map.inverse() * v.p_w;
+    map.set_point_position(p, m->second.T_w_c_truth * p_c);
     points.push_back(p);
   }
-  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.second);
+  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
 
   // 2. Re-fit each point at the truth; its observations' errors.
   std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(
       static_cast<std::size_t>(std::max(1, map.options().max_observations_per_point)));
   std::vector<CheckedObservation> checked;
-  std::vector<std::pair<map::PointId, Eigen::Vector3d>> fitted;
   std::array<double, kMaxLevels> sum2{};
   std::array<int, kMaxLevels> count{};
   std::array<int, kMaxLevels> in_rms{};
@@ -192,19 +216,15 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
     if (!map.read_point(p, v)) continue;
     Eigen::Vector3d X = v.p_w;
     const std::span<const std::pair<map::KeyframeId, std::uint32_t>> o(obs.data(), n);
-    SE3d T_ref;
-    if (!map.keyframe_pose(v.ref_keyframe, T_ref)) continue;
-    // An ill-posed re-fit keeps the position the point rode to.
-    if (!refit_point(map, K, o, X) ||
-        (X - v.p_w).norm() > kMaxRefitMove * (v.p_w - T_ref.translation()).norm()) {
-      X = v.p_w;
+    if (max_parallax_deg(map, o, X) < kMinRefitParallaxDeg || !refit_point(map, K, o, X)) {
+      ++rep.refit_rejected;  // keeps the position it rode to and its keypoints
+      continue;
     }
     map.set_point_position(p, X);
-    fitted.emplace_back(p, X);
     ++rep.points;
     for (const auto& [kf, kp_id] : o) {
       SE3d T_w_c;
-      map.keyframe_pose(kf, T_w_c);
+      if (!map.keyframe_pose(kf, T_w_c)) continue;
       const features::Keypoint& kp = map.keyframe_keypoints(kf)[kp_id];
       const Eigen::Vector3d p_c = T_w_c.inverse() * X;
       if (p_c.z() < kMinDepth) {  // no projection: keeps its keypoint
@@ -220,37 +240,43 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
       const double e_level = c.error.norm() / static_cast<double>(kp.scale);
       beyond_1 += e_level > 1.0 ? 1 : 0;
       beyond_2 += e_level > 2.0 ? 1 : 0;
-      const auto L = static_cast<std::size_t>(c.level);
-      ++count[L];
+      const auto level = static_cast<std::size_t>(c.level);
+      ++count[level];
       if (e_level <= kRmsCutLevelPx) {
-        sum2[L] += c.error.squaredNorm() / (static_cast<double>(kp.scale) * kp.scale);
-        ++in_rms[L];
+        sum2[level] += c.error.squaredNorm() / (static_cast<double>(kp.scale) * kp.scale);
+        ++in_rms[level];
       }
       checked.push_back(c);
     }
   }
   rep.observations = static_cast<int>(checked.size());
   if (checked.empty()) {
-    rep.note = "no point with two observations";
+    rep.note = "no point with two observations and enough parallax";
     return rep;
   }
-  rep.beyond_1_px = static_cast<double>(beyond_1) / static_cast<double>(checked.size());
-  rep.beyond_2_px = static_cast<double>(beyond_2) / static_cast<double>(checked.size());
+  rep.beyond_1_level_px = static_cast<double>(beyond_1) / static_cast<double>(checked.size());
+  rep.beyond_2_level_px = static_cast<double>(beyond_2) / static_cast<double>(checked.size());
   std::size_t top = 0;
-  for (std::size_t L = 0; L < kMaxLevels; ++L) top = count[L] > 0 ? L + 1 : top;
-  for (std::size_t L = 0; L < top; ++L) {
+  for (std::size_t level = 0; level < kMaxLevels; ++level) top = count[level] > 0 ? level + 1 : top;
+  for (std::size_t level = 0; level < top; ++level) {
     GroundTruthLevelError e;
-    e.observations = count[L];
-    e.rms_level_px = in_rms[L] > 0 ? std::sqrt(sum2[L] / (2.0 * in_rms[L])) : 0.0;
+    e.observations = count[level];
+    e.rms_level_px = in_rms[level] > 0 ? std::sqrt(sum2[level] / (2.0 * in_rms[level])) : 0.0;
     rep.levels.push_back(e);
+  }
+  // Where step 3 starts, for step 4 to start there too.
+  std::vector<std::pair<map::PointId, Eigen::Vector3d>> start;
+  for (const map::PointId p : points) {
+    map::PointView v;
+    if (map.read_point(p, v)) start.emplace_back(p, v.p_w);
   }
 
   // 3. The full BA from the truth, on the map's own observations.
-  LocalBaReport r = ba.optimize_full(K, max_iterations);
+  LocalBaReport r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
   rep.iterations_converged = r.iterations;
   rep.converged = live_poses(map);
 
-  // 4. Errors shuffled within each level; truth again; the full BA again.
+  // 4. Errors shuffled within each level; back to the start; the full BA again.
   std::array<std::vector<Eigen::Vector2d>, kMaxLevels> pool;
   for (const CheckedObservation& c : checked) {
     pool[static_cast<std::size_t>(c.level)].push_back(c.error);
@@ -263,14 +289,14 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   }
   std::array<std::size_t, kMaxLevels> used{};
   for (const CheckedObservation& c : checked) {
-    const auto L = static_cast<std::size_t>(c.level);
-    const Eigen::Vector2d uv = c.truth_uv + pool[L][used[L]++];
+    const auto level = static_cast<std::size_t>(c.level);
+    const Eigen::Vector2d uv = c.truth_uv + pool[level][used[level]++];
     map.set_keypoint_position_offline(c.kf, c.kp, static_cast<float>(uv.x()),
                                       static_cast<float>(uv.y()));
   }
-  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.second);
-  for (const auto& [p, X] : fitted) map.set_point_position(p, X);
-  r = ba.optimize_full(K, max_iterations);
+  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
+  for (const auto& [p, X] : start) map.set_point_position(p, X);
+  r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
   rep.iterations_shuffled = r.iterations;
   rep.shuffled = live_poses(map);
   rep.ran = true;

@@ -312,7 +312,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   return rep;
 }
 
-LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations) {
+LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int max_iterations,
+                                                 bool cull_points) {
   const auto t0 = begin_run();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
   std::vector<map::KeyframeId> window;
@@ -320,7 +321,7 @@ LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int
   for (map::KeyframeId id = 0; id < n; ++id) {
     if (map_.keyframe_is_live(id)) window.push_back(id);
   }
-  return optimize(window, K, max_iterations, false, t0, lock);
+  return optimize(window, K, max_iterations, false, t0, lock, cull_points);
 }
 
 std::chrono::steady_clock::time_point LocalBundleAdjuster::begin_run() {
@@ -334,7 +335,8 @@ std::chrono::steady_clock::time_point LocalBundleAdjuster::begin_run() {
 LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& window,
                                             const geometry::Pinhole& K, int max_iterations,
                                             bool budgeted, std::chrono::steady_clock::time_point t0,
-                                            std::unique_lock<platform::PiMutex>& lock) {
+                                            std::unique_lock<platform::PiMutex>& lock,
+                                            bool cull_points) {
   LocalBaReport rep;
   Workspace& ws = *ws_;
   const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
@@ -676,7 +678,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       continue;
     }
     const auto c = point_obs[p];
-    if (c.first < opts_.min_inlier_observations && c.second > 0) {
+    if (cull_points && c.first < opts_.min_inlier_observations && c.second > 0) {
       if (map_.point_num_observations(p) != pt.observations) {
         ++rep.stale_writes;
         continue;

@@ -203,8 +203,10 @@ class LocalBundleAdjuster {
   /// Full-graph optimization: every keyframe and map-point, the first keyframe held fixed
   /// (the gauge), no wall-time budget; `request_abort` still stops it. Totals are not
   /// touched. Used offline (`mer_slam --final-ba`) and by loop closure. Takes the writer lock
-  /// (the caller must not hold it).
-  LocalBaReport optimize_full(const geometry::Pinhole& K, int max_iterations);
+  /// (the caller must not hold it). `cull_points` false: points with too few inlier
+  /// observations stay (the ground-truth check runs two BAs on one point set).
+  LocalBaReport optimize_full(const geometry::Pinhole& K, int max_iterations,
+                              bool cull_points = true);
 
   /// Pre-empts the run in progress (any thread; lock-free): it stops at the next poll (see the
   /// file comment; within the solver iteration in progress), keeps the progress made (the last
@@ -236,7 +238,7 @@ class LocalBundleAdjuster {
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
                          int max_iterations, bool budgeted,
                          std::chrono::steady_clock::time_point t0,
-                         std::unique_lock<platform::PiMutex>& lock);
+                         std::unique_lock<platform::PiMutex>& lock, bool cull_points = true);
 
   LocalBaOptions opts_;
   map::Map& map_;

@@ -29,7 +29,8 @@
 ///    that is not live (never used, or freed). num_keyframes() / num_points() are the slot
 ///    high-water marks (ids below them have been used; check liveness).
 ///  - Immutable while a slot is live (plain memory, no synchronization cost): keyframe
-///    keypoints, descriptors, seq, t_ns.
+///    keypoints, descriptors, seq, t_ns (keypoint positions have one offline exception,
+///    set_keypoint_position_offline, for a map no reader uses any more).
 ///  - Mutable after publication, read through a per-slot seqlock whose payload is stored in
 ///    std::atomic words (seqlock.h; ThreadSanitizer-clean): keyframe pose + scale, point
 ///    position, representative descriptor, normal and distance range, reference keyframe /

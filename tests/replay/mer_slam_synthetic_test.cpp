@@ -81,7 +81,7 @@ TEST(MerSlamSynthetic, GroundTruthCheckLeavesTheRunsOutputsAndScoresItsOwn) {
   cv::FileStorage s = open_summary(checked);
   ASSERT_TRUE(s.isOpened());
   const int keyframes = static_cast<int>(s["gt_check"]["keyframes"]);
-  EXPECT_GE(keyframes, 2);
+  EXPECT_GE(keyframes, 3);
   EXPECT_GT(static_cast<int>(s["gt_check"]["observations"]), 0);
   const cv::FileNode rms = s["gt_check"]["rms_level_px"];
   ASSERT_TRUE(rms.isSeq());
@@ -92,13 +92,31 @@ TEST(MerSlamSynthetic, GroundTruthCheckLeavesTheRunsOutputsAndScoresItsOwn) {
   for (const char* f : {"keyframes_gt_converged.txt", "keyframes_gt_shuffled.txt"}) {
     EXPECT_EQ(count_lines((checked / f).string()), keyframes + 1) << f;  // and a header
   }
+  // RGB-D: depth pins the geometry, so the BA from the truth ends about where the run's own
+  // final map is (measured: 0.91 mm against 0.91 mm; shuffled 0.92 mm).
+  const double run_ate = static_cast<double>(s["accuracy_keyframes"]["ate_rmse_m"]);
   for (const char* key : {"accuracy_gt_converged", "accuracy_gt_shuffled"}) {
     EXPECT_EQ(static_cast<int>(s[key]["pairs"]), keyframes) << key;
+    EXPECT_EQ(static_cast<std::string>(s[key]["align"]), "se3") << key;
     const double ate = static_cast<double>(s[key]["ate_rmse_m"]);
-    EXPECT_GT(ate, 0.0) << key;
-    EXPECT_LT(ate, 0.02) << key << ": RGB-D synthetic started at the truth";
+    EXPECT_GT(ate, 0.5 * run_ate) << key;
+    EXPECT_LT(ate, 2.0 * run_ate) << key;
   }
   EXPECT_TRUE(open_summary(plain)["gt_check"].empty());
+}
+
+// A check that cannot run (one frame: fewer than three keyframes) says why in a valid
+// summary.json and writes no file of its own.
+TEST(MerSlamSynthetic, GroundTruthCheckThatCannotRunSaysWhy) {
+  const auto d = fresh_dir("mer_e2e_gt_check_no_truth");
+  const auto r = run_command(quote(kExe) + " --lockstep --mode rgbd --max-frames 1 --quiet" +
+                             " --gt-check --output " + quote(d.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  cv::FileStorage s = open_summary(d);
+  ASSERT_TRUE(s.isOpened()) << "summary.json must stay valid JSON";
+  EXPECT_EQ(static_cast<std::string>(s["gt_check"]["note"]), "fewer than 3 keyframes");
+  EXPECT_TRUE(s["accuracy_gt_converged"].empty());
+  EXPECT_FALSE(std::filesystem::exists(d / "keyframes_gt_converged.txt"));
 }
 
 // --final-ba: the whole graph is optimized after the stream; trajectory.txt stays what
