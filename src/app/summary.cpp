@@ -125,12 +125,12 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
         << ", \"unprojected\": " << g.unprojected << ", \"scale\": " << num(g.scale)
         << ", \"beyond_1_level_px\": " << num(g.beyond_1_level_px)
         << ", \"beyond_2_level_px\": " << num(g.beyond_2_level_px) << ", \"rms_level_px\": [";
-      for (std::size_t L = 0; L < g.levels.size(); ++L) {
-        j << (L > 0 ? ", " : "") << num(g.levels[L].rms_level_px);
+      for (std::size_t l = 0; l < g.levels.size(); ++l) {
+        j << (l > 0 ? ", " : "") << num(g.levels[l].rms_level_px);
       }
       j << "], \"observations_per_level\": [";
-      for (std::size_t L = 0; L < g.levels.size(); ++L) {
-        j << (L > 0 ? ", " : "") << g.levels[L].observations;
+      for (std::size_t l = 0; l < g.levels.size(); ++l) {
+        j << (l > 0 ? ", " : "") << g.levels[l].observations;
       }
       j << "], \"iterations_converged\": " << g.iterations_converged
         << ", \"iterations_shuffled\": " << g.iterations_shuffled << "},\n";

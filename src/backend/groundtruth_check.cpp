@@ -7,12 +7,12 @@
 #include <iterator>
 #include <limits>
 #include <map>
-#include <numbers>
 #include <utility>
 
 #include <Eigen/Geometry>
 
 #include "features/keypoint.h"
+#include "geometry/triangulation.h"
 
 namespace mer::backend {
 namespace {
@@ -60,19 +60,6 @@ const StampedPose* nearest(std::span<const StampedPose> gt, std::int64_t t_ns,
   return best;
 }
 
-std::vector<StampedPose> live_poses(const map::Map& map) {
-  std::vector<StampedPose> out;
-  for (map::KeyframeId id = 0; id < map.num_keyframes(); ++id) {
-    SE3d T;
-    if (map.keyframe_is_live(id) && map.keyframe_pose(id, T)) {
-      out.push_back({map.keyframe_t_ns(id), T});
-    }
-  }
-  std::sort(out.begin(), out.end(),
-            [](const StampedPose& a, const StampedPose& b) { return a.t_ns < b.t_ns; });
-  return out;
-}
-
 // Gauss-Newton on the sigma-weighted reprojection error of X over the observations, with
 // the keyframes where the map has them. False when X ends behind a camera or degenerate.
 bool refit_point(const map::Map& map, const geometry::Pinhole& K,
@@ -106,22 +93,21 @@ bool refit_point(const map::Map& map, const geometry::Pinhole& K,
   return X.allFinite();
 }
 
-// Largest angle between two of the rays from the observing keyframes' centres to X, degrees.
+// Largest parallax angle at X between two of the observing keyframes' centres, degrees.
 double max_parallax_deg(const map::Map& map,
                         std::span<const std::pair<map::KeyframeId, std::uint32_t>> obs,
                         const Eigen::Vector3d& X) {
-  double min_cos = 1.0;
+  double best = 0.0;
   for (std::size_t i = 0; i < obs.size(); ++i) {
     SE3d Ti;
     if (!map.keyframe_pose(obs[i].first, Ti)) continue;
-    const Eigen::Vector3d ri = (X - Ti.translation()).normalized();
     for (std::size_t j = i + 1; j < obs.size(); ++j) {
       SE3d Tj;
       if (!map.keyframe_pose(obs[j].first, Tj)) continue;
-      min_cos = std::min(min_cos, ri.dot((X - Tj.translation()).normalized()));
+      best = std::max(best, geometry::parallax_deg(X, Ti.translation(), Tj.translation()));
     }
   }
-  return std::acos(std::clamp(min_cos, -1.0, 1.0)) * 180.0 / std::numbers::pi;
+  return best;
 }
 
 struct KeyframeMove {
@@ -274,7 +260,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   // 3. The full BA from the truth, on the map's own observations.
   LocalBaReport r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
   rep.iterations_converged = r.iterations;
-  rep.converged = live_poses(map);
+  rep.converged = map.live_keyframe_poses();
 
   // 4. Errors shuffled within each level; back to the start; the full BA again.
   std::array<std::vector<Eigen::Vector2d>, kMaxLevels> pool;
@@ -298,7 +284,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   for (const auto& [p, X] : start) map.set_point_position(p, X);
   r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
   rep.iterations_shuffled = r.iterations;
-  rep.shuffled = live_poses(map);
+  rep.shuffled = map.live_keyframe_poses();
   rep.ran = true;
   return rep;
 }

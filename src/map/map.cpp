@@ -660,6 +660,18 @@ KeyframeId Map::newest_keyframe() const noexcept {
   return newest_kf_.load(std::memory_order_acquire);
 }
 
+std::vector<StampedPose> Map::live_keyframe_poses() const {
+  std::vector<StampedPose> poses;
+  const KeyframeId n = num_keyframes();
+  for (KeyframeId id = 0; id < n; ++id) {
+    SE3d T;
+    if (keyframe_is_live(id) && keyframe_pose(id, T)) poses.push_back({keyframe_t_ns(id), T});
+  }
+  std::sort(poses.begin(), poses.end(),
+            [](const StampedPose& a, const StampedPose& b) { return a.t_ns < b.t_ns; });
+  return poses;
+}
+
 std::uint32_t Map::live_keyframes() const noexcept {
   return live_kfs_.load(std::memory_order_relaxed);
 }

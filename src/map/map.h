@@ -113,6 +113,7 @@
 #include <memory>
 #include <span>
 #include <utility>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -299,6 +300,9 @@ class Map {
   /// Live keyframes / points (relaxed snapshots).
   std::uint32_t live_keyframes() const noexcept;
   std::uint32_t live_points() const noexcept;
+  /// Every live keyframe's capture time and pose, sorted by time. Allocates: not for the
+  /// real-time threads (outputs and offline tools read it once the stages have stopped).
+  std::vector<StampedPose> live_keyframe_poses() const;
   /// True for a live keyframe.
   bool keyframe_is_live(KeyframeId kf) const noexcept;
   /// Generation of a live keyframe, kNoGeneration otherwise.

@@ -222,21 +222,6 @@ Status Pipeline::run() {
   return c.is_ok() ? k : c;
 }
 
-std::vector<StampedPose> Pipeline::live_keyframe_poses() const {
-  // Every stage has stopped: reading the map here races with nobody.
-  std::vector<StampedPose> poses;
-  const map::KeyframeId n = map_->num_keyframes();
-  for (map::KeyframeId id = 0; id < n; ++id) {
-    SE3d T;
-    if (map_->keyframe_is_live(id) && map_->keyframe_pose(id, T)) {
-      poses.push_back(StampedPose{map_->keyframe_t_ns(id), T});
-    }
-  }
-  std::sort(poses.begin(), poses.end(),
-            [](const StampedPose& a, const StampedPose& b) { return a.t_ns < b.t_ns; });
-  return poses;
-}
-
 backend::GroundTruthCheckReport Pipeline::check_against_groundtruth(
     std::span<const StampedPose> groundtruth) {
   // Every stage has stopped: this thread is the map's only user now.
@@ -250,12 +235,13 @@ backend::GroundTruthCheckReport Pipeline::check_against_groundtruth(
 }
 
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
-  return resolve_keyframe_poses(live_keyframe_poses(), culler_->lineage());
+  return resolve_keyframe_poses(map_->live_keyframe_poses(), culler_->lineage());
 }
 
 Status Pipeline::write_final_keyframes() const {
   if (output_dir_.empty()) return Status::ok();
-  const std::vector<StampedPose> poses = live_keyframe_poses();
+  // Every stage has stopped: reading the map here races with nobody.
+  const std::vector<StampedPose> poses = map_->live_keyframe_poses();
   const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));

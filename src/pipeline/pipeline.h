@@ -191,8 +191,6 @@ class Pipeline {
   /// Writes `output_dir`/keyframes_final.txt: the live keyframes' poses in the final map
   /// (after local BA and the final BA), in time order.
   Status write_final_keyframes() const;
-  /// Live keyframes' poses, sorted by time (after run()).
-  std::vector<StampedPose> live_keyframe_poses() const;
   std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;
