@@ -186,7 +186,9 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
     << ", \"fused_observations\": " << m.fused_observations
     << ", \"merged_points\": " << m.merged_points
-    << ", \"view_observations\": " << m.view_observations << ", \"depth_valid\": " << m.depth_valid
+    << ", \"view_observations\": " << m.view_observations
+    << ", \"aligned_keypoints\": " << m.aligned_keypoints
+    << ", \"align_refused\": " << m.align_refused << ", \"depth_valid\": " << m.depth_valid
     << ", \"depth_missing\": " << m.depth_missing << ", \"depth_errors\": " << m.depth_errors
     << ", \"live_keyframes\": " << st.map.live_keyframes
     << ", \"live_points\": " << st.map.live_points

@@ -144,6 +144,12 @@ struct DepthOptions {
   /// A projected point matching a keypoint that tracks another point merges the two: auto
   /// (rgbd mode only), on, off.
   std::string fuse_merge_duplicates = "auto";
+  /// Align each point's keypoint in a new keyframe to the point's anchor patch (its
+  /// appearance in the first keyframe that observed it, warped by the views' geometry).
+  bool align_keypoints = false;
+  double align_max_shift_px = 1.5;  ///< largest move of an aligned keypoint, px of its level
+  int align_keyframe_images = 8;    ///< recent keyframe images kept for aligning new points
+  double align_max_rms = 6.0;       ///< largest RMS intensity residual of an accepted alignment
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;
@@ -185,6 +191,26 @@ struct DepthOptions {
             "old and new points of a revisited place together: auto (on in rgbd mode, off "
             "in mono, where the map's scale drifts between them), on, off",
             options::OneOf{kMergeModes});
+    v.field("align_keypoints", align_keypoints,
+            "move the keypoint of each map point seen by a new keyframe to where the point's "
+            "anchor patch (its appearance in the first keyframe that observed it, warped by the "
+            "views' relative pose) aligns best, and a new point's keypoints in older keyframes "
+            "likewise, so every keyframe measures the same surface point rather than each its "
+            "own detection (map.max_points anchor patches of about 300 bytes are allocated "
+            "when on; off by default: see README, keypoint alignment)");
+    v.field("align_max_shift_px", align_max_shift_px,
+            "an alignment that moves a keypoint farther than this (px of its pyramid level) is "
+            "refused and the detection kept",
+            options::Range<double>{0.1, 10.0});
+    v.field("align_keyframe_images", align_keyframe_images,
+            "image pyramids of the most recent keyframes kept (align_keypoints): a new point's "
+            "keypoints in older keyframes are aligned to its anchor when their keyframe's image is "
+            "still kept (about 0.45 MB each at 640x480)",
+            options::Range<int>{1, 64});
+    v.field("align_max_rms", align_max_rms,
+            "an alignment whose RMS intensity residual (grey levels, brightness offset removed) "
+            "stays above this did not find the anchor's surface point: refused, detection kept",
+            options::Range<double>{0.0, 255.0});
     v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
     v.section("plane_sweep", plane_sweep,

@@ -6,6 +6,8 @@
 #include <limits>
 #include <mutex>
 
+#include <opencv2/imgproc.hpp>
+
 #include "depth/external_depth.h"
 #include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
@@ -22,6 +24,8 @@ constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a poi
 constexpr std::size_t kMinDepthHintPoints = 10;   // tracked points giving a depth range
 constexpr double kDepthHintLowQuantile = 0.05;    // the range: these quantiles of their depth
 constexpr double kDepthHintHighQuantile = 0.95;
+constexpr int kAlignIterations = 10;        // Gauss-Newton steps of a keypoint alignment
+constexpr float kAlignTolerancePx = 0.01F;  // converged: last update shorter (level px)
 
 }  // namespace
 
@@ -81,6 +85,12 @@ Status KeyframeBuilder::init() {
   views_.reserve(static_cast<std::size_t>(opts_.neighbours));
   ids_.resize(n);
   fuse_dist_.resize(n);
+  kps_.resize(n);
+  if (opts_.align_keypoints) {
+    anchors_.resize(static_cast<std::size_t>(map_.options().max_points));
+    images_.resize(static_cast<std::size_t>(opts_.align_keyframe_images));
+    new_obs_.reserve(n * static_cast<std::size_t>(opts_.neighbours));
+  }
   return Status::ok();
 }
 
@@ -322,6 +332,174 @@ void KeyframeBuilder::refine_point(std::uint32_t p, const geometry::Pinhole& K) 
   map_.set_point_position(p, X);
 }
 
+void KeyframeBuilder::build_pyramid(const cv::Mat& gray) {
+  const std::size_t levels = std::max<std::size_t>(1, level_sigma2_.size());
+  if (level_to_x0_.size() != levels) {
+    level_to_x0_.assign(levels, 1.0);
+    level_to_y0_.assign(levels, 1.0);
+  }
+  KeyframeImage& img = images_[image_next_];
+  img.kf = map::kNoId;
+  img.gen = map::kNoGeneration;
+  img.levels.resize(levels);
+  gray.copyTo(img.levels[0]);
+  for (std::size_t l = 1; l < levels; ++l) {
+    // The extractor's level sizes (orb_extractor.cpp), area-averaged from level 0.
+    const double s = std::sqrt(static_cast<double>(level_sigma2_[l]));
+    const int w = std::max(1, static_cast<int>(std::lround(gray.cols / s)));
+    const int h = std::max(1, static_cast<int>(std::lround(gray.rows / s)));
+    cv::resize(gray, img.levels[l], cv::Size(w, h), 0.0, 0.0, cv::INTER_AREA);
+    level_to_x0_[l] = static_cast<double>(gray.cols) / w;
+    level_to_y0_[l] = static_cast<double>(gray.rows) / h;
+  }
+}
+
+const std::vector<cv::Mat>* KeyframeBuilder::keyframe_levels(map::KeyframeId kf) const {
+  for (const KeyframeImage& img : images_) {
+    if (img.kf == kf && img.kf != map::kNoId && map_.keyframe_generation(kf) == img.gen) {
+      return &img.levels;
+    }
+  }
+  return nullptr;
+}
+
+bool KeyframeBuilder::sample_anchor(const std::vector<cv::Mat>& levels,
+                                    const features::Keypoint& kp, const SE3d& T_w_a,
+                                    const Eigen::Vector3d& p_w, double fx, Anchor& out) const {
+  const double z = (T_w_a.inverse() * p_w).z();
+  const auto l =
+      static_cast<std::size_t>(std::clamp<int>(kp.level, 0, static_cast<int>(levels.size()) - 1));
+  const auto x = static_cast<float>((kp.x + 0.5) / level_to_x0_[l] - 0.5);
+  const auto y = static_cast<float>((kp.y + 0.5) / level_to_y0_[l] - 0.5);
+  if (!(z > 0.0) || !features::sample_anchor_patch(levels[l], x, y, out.pixels, out.centre))
+    return false;
+  out.q_w_a = Eigen::Quaternionf(T_w_a.rotation().cast<float>());
+  out.level = static_cast<std::int8_t>(l);
+  out.m_px = static_cast<float>(z * std::sqrt(level_sigma2(static_cast<int>(l))) / fx);
+  return true;
+}
+
+KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
+    const Anchor& a, const std::vector<cv::Mat>& levels, const Eigen::Vector3d& p_w,
+    const SE3d& T_c_w, const geometry::Pinhole& K, features::Keypoint& kp) const {
+  // The anchor's camera now (it moved with the map since) or, once culled, as sampled.
+  Eigen::Matrix3d R_w_a = a.q_w_a.toRotationMatrix().cast<double>();
+  double m_px = a.m_px;
+  SE3d T_w_a;
+  if (a.kf != map::kNoId && map_.keyframe_generation(a.kf) == a.kf_gen &&
+      map_.keyframe_pose(a.kf, T_w_a)) {
+    const double z_a = (T_w_a.inverse() * p_w).z();
+    if (z_a > 0.0) {
+      R_w_a = T_w_a.rotation();
+      m_px = z_a * std::sqrt(level_sigma2(a.level)) / K.fx;
+    }
+  }
+  const Eigen::Vector3d X = T_c_w * p_w;
+  if (!(X.z() > 0.0) || !(m_px > 0.0)) return AlignOutcome::kRefused;
+  // Target level-0 px per anchor px: projection Jacobian x the anchor's pixel axes.
+  Eigen::Matrix<double, 2, 3> J;
+  J << K.fx / X.z(), 0.0, -K.fx * X.x() / (X.z() * X.z()), 0.0, K.fy / X.z(),
+      -K.fy * X.y() / (X.z() * X.z());
+  const Eigen::Matrix2d A0 = J * T_c_w.rotation() * R_w_a.leftCols<2>() * m_px;
+  const double det0 = A0.determinant();
+  if (!(det0 > 0.0)) return AlignOutcome::kRefused;  // seen from behind the anchor's plane
+  // The level where the warp is closest to a unit scale.
+  std::size_t lc = 0;
+  double best = std::numeric_limits<double>::max();
+  for (std::size_t l = 0; l < levels.size(); ++l) {
+    const double c = std::abs(std::log(det0 / (level_to_x0_[l] * level_to_y0_[l])));
+    if (c < best) {
+      best = c;
+      lc = l;
+    }
+  }
+  Eigen::Matrix2d A = A0;
+  A.row(0) /= level_to_x0_[lc];
+  A.row(1) /= level_to_y0_[lc];
+  features::WarpedPatch ref{};
+  Eigen::Vector2f uv(static_cast<float>((kp.x + 0.5) / level_to_x0_[lc] - 0.5),
+                     static_cast<float>((kp.y + 0.5) / level_to_y0_[lc] - 0.5));
+  const Eigen::Vector2f start = uv;
+  if (!features::warp_anchor_patch(a.pixels, a.centre, A.inverse().cast<float>(), ref)) {
+    return AlignOutcome::kRefused;
+  }
+  const features::AlignResult r =
+      features::align_patch(levels[lc], ref, kAlignIterations, kAlignTolerancePx, uv);
+  if (!r.converged || static_cast<double>(r.rms) > opts_.align_max_rms) {
+    return AlignOutcome::kRefused;
+  }
+  const double dx = (uv.x() - start.x()) * level_to_x0_[lc];
+  const double dy = (uv.y() - start.y()) * level_to_y0_[lc];
+  const double max_shift = opts_.align_max_shift_px * static_cast<double>(kp.scale);
+  if (dx * dx + dy * dy > max_shift * max_shift) return AlignOutcome::kRefused;
+  kp.x += static_cast<float>(dx);
+  kp.y += static_cast<float>(dy);
+  return AlignOutcome::kAligned;
+}
+
+void KeyframeBuilder::count(AlignOutcome o, KeyframeBuildReport& rep) {
+  if (o == AlignOutcome::kAligned) ++rep.aligned_keypoints;
+  if (o == AlignOutcome::kRefused) ++rep.align_refused;
+}
+
+void KeyframeBuilder::align_tracked(const map::KeyframeJob& job, KeyframeBuildReport& rep) {
+  const auto n = static_cast<std::size_t>(job.num_keypoints);
+  const SE3d T_c_w = job.T_w_c.inverse();
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint32_t p = ids_[i];
+    if (p == map::kNoId || p >= anchors_.size()) continue;
+    const Anchor& a = anchors_[p];
+    if (a.point_gen == map::kNoGeneration || a.point_gen != map_.point_generation(p)) continue;
+    map::PointView pv;
+    if (!map_.read_point(p, pv)) continue;
+    count(align_to_anchor(a, images_[image_next_].levels, pv.p_w, T_c_w, job.K, kps_[i]), rep);
+  }
+}
+
+void KeyframeBuilder::set_anchors(const map::KeyframeJob& job, map::KeyframeId kf) {
+  KeyframeImage& img = images_[image_next_];
+  img.kf = kf;
+  img.gen = map_.keyframe_generation(kf);
+  const auto n = static_cast<std::size_t>(job.num_keypoints);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint32_t p = map_.keyframe_point(kf, static_cast<std::uint32_t>(i));
+    if (p == map::kNoId || p >= anchors_.size()) continue;
+    Anchor& a = anchors_[p];
+    const map::Generation g = map_.point_generation(p);
+    if (a.point_gen == g) continue;  // anchored already
+    map::PointView pv;
+    if (!map_.read_point(p, pv) ||
+        !sample_anchor(img.levels, kps_[i], job.T_w_c, pv.p_w, job.K.fx, a)) {
+      continue;
+    }
+    a.kf = kf;
+    a.kf_gen = img.gen;
+    a.point_gen = g;
+  }
+}
+
+void KeyframeBuilder::align_new_observations(const geometry::Pinhole& K, KeyframeBuildReport& rep) {
+  for (const NewObservation& o : new_obs_) {
+    if (o.point >= anchors_.size()) continue;
+    const Anchor& a = anchors_[o.point];
+    if (a.point_gen == map::kNoGeneration || a.point_gen != map_.point_generation(o.point)) {
+      continue;
+    }
+    const std::vector<cv::Mat>* levels = keyframe_levels(o.kf);
+    SE3d T_w_v;
+    map::PointView pv;
+    if (levels == nullptr || !map_.keyframe_pose(o.kf, T_w_v) || !map_.read_point(o.point, pv)) {
+      continue;
+    }
+    const auto kps = map_.keyframe_keypoints(o.kf);
+    if (o.kp >= kps.size()) continue;
+    features::Keypoint kp = kps[o.kp];
+    const AlignOutcome out = align_to_anchor(a, *levels, pv.p_w, T_w_v.inverse(), K, kp);
+    count(out, rep);
+    if (out == AlignOutcome::kAligned) (void)map_.set_keypoint_position(o.kf, o.kp, kp.x, kp.y);
+  }
+}
+
 KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   // The whole pass is one writer section: depth inference reads writer-side state
   // (observations of the neighbours' points) and the insertion must see it unchanged.
@@ -329,7 +507,8 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   const auto t0 = std::chrono::steady_clock::now();
   KeyframeBuildReport rep;
   const auto n = static_cast<std::size_t>(job.num_keypoints);
-  const std::span<const features::Keypoint> kps(job.keypoints.data(), n);
+  std::copy_n(job.keypoints.begin(), n, kps_.begin());
+  const std::span<const features::Keypoint> kps(kps_.data(), n);
   const std::span<const features::Descriptor> descs(job.descriptors.data(), n);
   std::copy_n(job.point_ids.begin(), n, ids_.begin());
   // A tracked point culled since (its slot possibly reused by another point) is not tracked.
@@ -344,6 +523,10 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   pick_neighbours(job);
   rep.fused_observations = fuse_local_points(job);
   rep.merged_points = merged_;
+  if (!anchors_.empty()) {
+    build_pyramid(job.gray);
+    align_tracked(job, rep);
+  }
   views_.clear();
   for (std::size_t v = 0; v < neighbour_ids_.size(); ++v) {
     const std::uint32_t kf = neighbour_ids_[v];
@@ -477,6 +660,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   }
 
   // 5. New map-points from confident local 3D points.
+  new_obs_.clear();
   for (std::size_t i = 0; i < n; ++i) {
     if (ids[i] != map::kNoId || depth_[i] <= 0.0F || confidence_[i] < opts_.min_confidence) {
       continue;
@@ -488,14 +672,18 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
     if (!p.is_ok()) break;  // map full: counted by the map, logged once below
     ++rep.new_points;
     const std::uint32_t sv = support_view_[i];
-    if (sv != kNoSupport && sv < views_.size()) {
-      (void)map_.add_observation(p.value(), views_[sv].id, support_kp_[i]);
+    if (sv != kNoSupport && sv < views_.size() &&
+        map_.add_observation(p.value(), views_[sv].id, support_kp_[i]) && !anchors_.empty()) {
+      new_obs_.push_back({p.value(), views_[sv].id, support_kp_[i]});
     }
     if (!out.view_keypoint.empty()) {
       for (std::size_t v = 0; v < views_.size(); ++v) {
         const std::uint32_t j = out.view_keypoint[i * views_.size() + v];
         if (j == kNoSupport || v == sv) continue;
-        if (map_.add_observation(p.value(), views_[v].id, j)) ++rep.view_observations;
+        if (map_.add_observation(p.value(), views_[v].id, j)) {
+          ++rep.view_observations;
+          if (!anchors_.empty()) new_obs_.push_back({p.value(), views_[v].id, j});
+        }
       }
     }
     touched_.push_back(p.value());
@@ -508,6 +696,11 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   }
   for (const std::uint32_t p : touched_) map_.update_point(p);
   map_.update_covisibility(kf);
+  if (!anchors_.empty()) {
+    set_anchors(job, kf);
+    align_new_observations(job.K, rep);
+    image_next_ = (image_next_ + 1) % images_.size();
+  }
   rep.ok = true;
 
   const double ms =
@@ -518,6 +711,8 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   totals_.fused_observations += static_cast<std::uint64_t>(rep.fused_observations);
   totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
   totals_.view_observations += static_cast<std::uint64_t>(rep.view_observations);
+  totals_.aligned_keypoints += static_cast<std::uint64_t>(rep.aligned_keypoints);
+  totals_.align_refused += static_cast<std::uint64_t>(rep.align_refused);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
   totals_.total_ms += ms;
   totals_.max_ms = std::max(totals_.max_ms, ms);

@@ -6,20 +6,25 @@
 /// (robust median ratio) when the backend is not already in map units, inserts the keyframe,
 /// its observations of tracked map-points (3D-2D edges), new map-points from confident depth
 /// where no map-point is associated (3D-3D local points), and refreshes the covisibility
-/// (keyframe-keyframe edges). spin_once holds the map's writer lock (map.h) for the whole
-/// pass, depth inference included.
-/// Runs on its own low-priority thread in threaded mode (the local BA and culling run on the
-/// back-end thread); tracking never waits for it.
+/// (keyframe-keyframe edges). With depth.align_keypoints it first moves the keypoints of
+/// tracked points onto the points' anchor patches (features/patch_align.h) and gives points
+/// without one an anchor from the new keyframe. spin_once holds the map's writer lock (map.h) for
+/// the whole pass, depth inference included. Runs on its own low-priority thread in threaded mode
+/// (the local BA and culling run on the back-end thread); tracking never waits for it.
 
 #include <cstdint>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include <Eigen/Geometry>
+#include <opencv2/core/mat.hpp>
+
 #include "core/status.h"
 #include "depth/depth_inference.h"
 #include "depth/depth_map_source.h"
 #include "depth/depth_options.h"
+#include "features/patch_align.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
 
@@ -35,6 +40,8 @@ struct KeyframeBuildReport {
   int depth_valid = 0;                   ///< keypoints that got a depth
   int new_points = 0;                    ///< map-points created
   int view_observations = 0;   ///< observations of new points in other agreeing neighbours
+  int aligned_keypoints = 0;   ///< keypoints moved onto their point's anchor (align_keypoints)
+  int align_refused = 0;       ///< alignments tried and refused (detection kept)
   int neighbours = 0;          ///< views given to depth inference
   int scale_samples = 0;       ///< 3D-2D matches used for the scale ratio
   double scale_ratio = 1.0;    ///< map depth / inferred depth (median)
@@ -50,6 +57,8 @@ struct KeyframeBuildTotals {
   std::uint64_t fused_observations = 0;  ///< of these, found by projection (depth.fuse_keyframes)
   std::uint64_t merged_points = 0;       ///< duplicates merged (depth.fuse_merge_duplicates)
   std::uint64_t view_observations = 0;   ///< of new points, beyond their first two views
+  std::uint64_t aligned_keypoints = 0;   ///< keypoints aligned to their point's anchor patch
+  std::uint64_t align_refused = 0;       ///< alignments refused (detection kept)
   std::uint64_t depth_valid = 0;
   std::uint64_t depth_missing = 0;  ///< keyframes the backend had no input for (no depth map)
   std::uint64_t depth_errors = 0;   ///< keyframes whose depth inference failed otherwise
@@ -94,6 +103,36 @@ class KeyframeBuilder {
   // Whether point keep's position reprojects within the chi2 gate onto every keypoint that
   // observes point drop (a merge must not bend any observation).
   bool explains_observations(std::uint32_t keep, std::uint32_t drop, const geometry::Pinhole& K);
+  // depth.align_keypoints. The new keyframe's pyramid goes into the ring of recent keyframe
+  // images; its keypoints of points with an anchor are aligned to the anchor before
+  // insertion; after it every point of the keyframe without an anchor (new points among
+  // them) gets one here, and the new points' observations in older keyframes still in the
+  // ring are aligned to it.
+  struct Anchor;
+  enum class AlignOutcome : std::uint8_t { kAligned, kRefused };
+  void build_pyramid(const cv::Mat& gray);
+  const std::vector<cv::Mat>* keyframe_levels(map::KeyframeId kf) const;
+  bool sample_anchor(const std::vector<cv::Mat>& levels, const features::Keypoint& kp,
+                     const SE3d& T_w_a, const Eigen::Vector3d& p_w, double fx, Anchor& out) const;
+  AlignOutcome align_to_anchor(const Anchor& a, const std::vector<cv::Mat>& levels,
+                               const Eigen::Vector3d& p_w, const SE3d& T_c_w,
+                               const geometry::Pinhole& K, features::Keypoint& kp) const;
+  static void count(AlignOutcome o, KeyframeBuildReport& rep);
+  void align_tracked(const map::KeyframeJob& job, KeyframeBuildReport& rep);
+  void set_anchors(const map::KeyframeJob& job, map::KeyframeId kf);
+  void align_new_observations(const geometry::Pinhole& K, KeyframeBuildReport& rep);
+
+  // A point's appearance where a keyframe first observed it (depth.align_keypoints).
+  struct Anchor {
+    features::AnchorPixels pixels{};
+    Eigen::Vector2f centre = Eigen::Vector2f::Zero();           // the keypoint in patch coordinates
+    Eigen::Quaternionf q_w_a = Eigen::Quaternionf::Identity();  // anchor camera rotation
+    float m_px = 0.0F;  // world size of an anchor pixel at the point (fronto-parallel plane)
+    map::KeyframeId kf = map::kNoId;                 // the anchor keyframe
+    map::Generation kf_gen = map::kNoGeneration;     // its occupant
+    map::Generation point_gen = map::kNoGeneration;  // the point the anchor belongs to
+    std::int8_t level = 0;                           // pyramid level sampled
+  };
 
   DepthOptions opts_;
   std::string mode_;
@@ -127,6 +166,24 @@ class KeyframeBuilder {
   int merged_ = 0;                          // duplicates merged by the last fuse_local_points
   std::vector<std::uint32_t> fuse_points_;  // candidate points of the projection
   std::vector<std::uint32_t> fuse_kfs_;     // keyframes they come from
+  std::vector<features::Keypoint> kps_;     // the job's keypoints, aligned
+  std::vector<Anchor> anchors_;             // per point slot (align_keypoints)
+  // A recent keyframe's image pyramid (align_keypoints).
+  struct KeyframeImage {
+    std::vector<cv::Mat> levels;
+    map::KeyframeId kf = map::kNoId;
+    map::Generation gen = map::kNoGeneration;
+  };
+  std::vector<KeyframeImage> images_;  // ring; images_[image_next_]: the new keyframe
+  std::size_t image_next_ = 0;
+  struct NewObservation {
+    std::uint32_t point;
+    map::KeyframeId kf;
+    std::uint32_t kp;
+  };
+  std::vector<NewObservation> new_obs_;  // new points' observations in older keyframes
+  std::vector<double> level_to_x0_;      // level px -> level-0 px, per level
+  std::vector<double> level_to_y0_;
 };
 
 }  // namespace mer::depth

@@ -413,7 +413,7 @@ void Map::set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale) {
   write_pose(kf, T_w_c, scale);
 }
 
-bool Map::set_keypoint_position_offline(KeyframeId kf, std::uint32_t kp, float x, float y) {
+bool Map::set_keypoint_position(KeyframeId kf, std::uint32_t kp, float x, float y) {
   if (!valid_keypoint(kf, kp) || !std::isfinite(x) || !std::isfinite(y)) return false;
   features::Keypoint& k = kf_keypoints_[kp_index(kf, kp)];
   k.x = x;

@@ -29,8 +29,12 @@
 ///    that is not live (never used, or freed). num_keyframes() / num_points() are the slot
 ///    high-water marks (ids below them have been used; check liveness).
 ///  - Immutable while a slot is live (plain memory, no synchronization cost): keyframe
-///    keypoints, descriptors, seq, t_ns (keypoint positions have one offline exception,
-///    set_keypoint_position_offline, for a map no reader uses any more).
+///    descriptors, seq, t_ns, the number of keypoints and each keypoint's level, scale,
+///    angle and response.
+///  - Writer-side data (plain memory, writer-lock holders only): keypoint positions. The
+///    writer may move a keypoint (set_keypoint_position: keypoint alignment); every reader of
+///    positions (keyframe creation, local BA, culling, loop closure) holds the writer lock,
+///    and lock-free readers use keyframe_keypoints() for its size only.
 ///  - Mutable after publication, read through a per-slot seqlock whose payload is stored in
 ///    std::atomic words (seqlock.h; ThreadSanitizer-clean): keyframe pose + scale, point
 ///    position, representative descriptor, normal and distance range, reference keyframe /
@@ -229,11 +233,11 @@ class Map {
   void set_point_position(PointId p, const Eigen::Vector3d& p_w);
   /// Sets a keyframe pose and its similarity scale (Sim3 corrections; stored, not applied).
   void set_keyframe_pose(KeyframeId kf, const SE3d& T_w_c, double scale = 1.0);
-  /// Moves keypoint kp of kf to (x, y), level-0 px. Keypoints are otherwise immutable once a
-  /// keyframe is published and readers hold no lock on them: offline use only, with no
-  /// reader running (the ground-truth check, backend/groundtruth_check.h). False for an
-  /// unknown keyframe or keypoint, or a non-finite position.
-  bool set_keypoint_position_offline(KeyframeId kf, std::uint32_t kp, float x, float y);
+  /// Moves keypoint kp of kf to (x, y), level-0 px (keypoint alignment, the ground-truth
+  /// check). Writer-lock holders only; positions are writer-side data (above). Covisibility
+  /// and point descriptors are unaffected. False for an unknown keyframe or keypoint, or a
+  /// non-finite position.
+  bool set_keypoint_position(KeyframeId kf, std::uint32_t kp, float x, float y);
   /// Records a world-frame correction (a loop closure moved the map by S_new_old around the
   /// newest keyframes): the cumulative correction becomes S_new_old * previous. Readers that
   /// keep poses of their own (the tracker's last pose) move them by the part they missed.
@@ -315,8 +319,8 @@ class Map {
   bool read_correction(geometry::Sim3d& S, std::uint32_t& count) const noexcept;
   /// Consistent pose (and scale); false for an unknown id or after failed retries.
   bool keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale = nullptr) const noexcept;
-  /// Keypoints of kf (immutable while live; valid until the caller's next quiescent point;
-  /// empty for an unknown id).
+  /// Keypoints of kf (valid until the caller's next quiescent point; empty for an unknown
+  /// id). Their positions are writer-side data: lock-free readers may use the size only.
   std::span<const features::Keypoint> keyframe_keypoints(KeyframeId kf) const noexcept;
   /// Descriptors of kf (as keyframe_keypoints).
   std::span<const features::Descriptor> keyframe_descriptors(KeyframeId kf) const noexcept;

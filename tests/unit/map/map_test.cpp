@@ -166,19 +166,19 @@ TEST(Map, AddKeyframeStoresEverything) {
   EXPECT_EQ(scale, 1.5);
 }
 
-TEST(Map, OfflineKeypointMoveChangesOnlyThatKeypoint) {
+TEST(Map, KeypointMoveChangesOnlyThatKeypoint) {
   Map m(small_options());
   const KfData d = make_kf(10, 1);
   const KeyframeId kf = add_kf(m, d, pose_at(1.0, 0.3), 42);
-  ASSERT_TRUE(m.set_keypoint_position_offline(kf, 3, 7.25F, -1.5F));
+  ASSERT_TRUE(m.set_keypoint_position(kf, 3, 7.25F, -1.5F));
   EXPECT_EQ(m.keyframe_keypoints(kf)[3].x, 7.25F);
   EXPECT_EQ(m.keyframe_keypoints(kf)[3].y, -1.5F);
   EXPECT_EQ(m.keyframe_keypoints(kf)[3].level, d.kps[3].level);
   EXPECT_EQ(m.keyframe_keypoints(kf)[2].x, d.kps[2].x);
   EXPECT_EQ(m.keyframe_keypoints(kf)[4].y, d.kps[4].y);
-  EXPECT_FALSE(m.set_keypoint_position_offline(kf, 10, 0.0F, 0.0F));     // no such keypoint
-  EXPECT_FALSE(m.set_keypoint_position_offline(kf + 1, 0, 0.0F, 0.0F));  // no such keyframe
-  EXPECT_FALSE(m.set_keypoint_position_offline(kf, 0, std::nanf(""), 0.0F));
+  EXPECT_FALSE(m.set_keypoint_position(kf, 10, 0.0F, 0.0F));     // no such keypoint
+  EXPECT_FALSE(m.set_keypoint_position(kf + 1, 0, 0.0F, 0.0F));  // no such keyframe
+  EXPECT_FALSE(m.set_keypoint_position(kf, 0, std::nanf(""), 0.0F));
   EXPECT_EQ(m.keyframe_keypoints(kf)[0].x, d.kps[0].x);
 }
 
