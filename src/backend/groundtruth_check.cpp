@@ -277,8 +277,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   for (const CheckedObservation& c : checked) {
     const auto level = static_cast<std::size_t>(c.level);
     const Eigen::Vector2d uv = c.truth_uv + pool[level][used[level]++];
-    map.set_keypoint_position(c.kf, c.kp, static_cast<float>(uv.x()),
-                                      static_cast<float>(uv.y()));
+    map.set_keypoint_position(c.kf, c.kp, static_cast<float>(uv.x()), static_cast<float>(uv.y()));
   }
   for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
   for (const auto& [p, X] : start) map.set_point_position(p, X);
