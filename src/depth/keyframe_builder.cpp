@@ -344,7 +344,10 @@ void KeyframeBuilder::build_pyramid(const cv::Mat& gray) {
   img.levels.resize(levels);
   gray.copyTo(img.levels[0]);
   for (std::size_t l = 1; l < levels; ++l) {
-    // The extractor's level sizes (orb_extractor.cpp), area-averaged from level 0.
+    // The extractor's level sizes (orb_extractor.cpp), area-averaged from level 0. Bilinear
+    // resampling from the level before is 10x cheaper (1.3 against 13.7 ms for a 1241x376
+    // pyramid) but aliases, and aligned hall_drive maps were worse with it (seeds 1-6:
+    // 0.168 against 0.139 % re-anchored ATE).
     const double s = std::sqrt(static_cast<double>(level_sigma2_[l]));
     const int w = std::max(1, static_cast<int>(std::lround(gray.cols / s)));
     const int h = std::max(1, static_cast<int>(std::lround(gray.rows / s)));

@@ -140,6 +140,9 @@ TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
     pc.tracking.keyframe.max_spacing_s = 0.1;
     pc.backend.max_iterations = 50;
     pc.backend.window_keyframes = 10;
+    // Keypoint alignment moves keypoints of published keyframes (writer-side data read by
+    // the BA and culling under the writer lock, while the tracker reads keypoint counts).
+    pc.depth.align_keypoints = true;
   });
   const PipelineStats& s = r.stats;
   std::printf(
@@ -159,6 +162,7 @@ TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
   EXPECT_EQ(r.pool_available, r.pool_capacity);
   EXPECT_GE(s.mapping.keyframes, 14U) << "keyframes created";
   EXPECT_GT(s.backend.runs, 0U) << "local BA ran on the back-end thread";
+  EXPECT_GT(s.mapping.aligned_keypoints, 0U) << "keypoints aligned while the BA ran";
   // One run per inserted keyframe at most (older ones queued behind a newer are coalesced).
   EXPECT_LE(s.backend.runs + s.backend_coalesced, s.mapping.keyframes);
   EXPECT_GT(s.culling.runs, 0U);
