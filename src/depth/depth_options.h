@@ -147,9 +147,10 @@ struct DepthOptions {
   /// Align each point's keypoint in a new keyframe to the point's anchor patch (its
   /// appearance in the first keyframe that observed it, warped by the views' geometry).
   bool align_keypoints = false;
-  double align_max_shift_px = 1.5;  ///< largest move of an aligned keypoint, px of its level
-  int align_keyframe_images = 8;    ///< recent keyframe images kept for aligning new points
-  double align_max_rms = 6.0;       ///< largest RMS intensity residual of an accepted alignment
+  double align_max_shift_px = 1.5;    ///< largest move of an aligned keypoint, px of its level
+  int align_keyframe_images = 8;      ///< recent keyframe images kept for aligning new points
+  double align_max_rms = 6.0;         ///< largest RMS intensity residual of an accepted alignment
+  double align_max_anisotropy = 1.3;  ///< largest singular-value ratio of the predicted warp
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;
@@ -211,6 +212,11 @@ struct DepthOptions {
             "an alignment whose RMS intensity residual (grey levels, brightness offset removed) "
             "stays above this did not find the anchor's surface point: refused, detection kept",
             options::Range<double>{0.0, 255.0});
+    v.field("align_max_anisotropy", align_max_anisotropy,
+            "an alignment whose predicted warp stretches one direction more than this times "
+            "the other (the views see the surface at very different angles, where the anchor's "
+            "fronto-parallel model is least right) is refused, detection kept",
+            options::Range<double>{1.0, 100.0});
     v.section("triangulation", triangulation, "multi-view triangulation backend (monocular)");
     v.section("rgbd", rgbd, "RGB-D passthrough backend");
     v.section("plane_sweep", plane_sweep,

@@ -6,6 +6,7 @@
 #include <limits>
 #include <mutex>
 
+#include <Eigen/SVD>
 #include <opencv2/imgproc.hpp>
 
 #include "depth/external_depth.h"
@@ -419,6 +420,10 @@ KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
   Eigen::Matrix2d A = A0;
   A.row(0) /= level_to_x0_[lc];
   A.row(1) /= level_to_y0_[lc];
+  // A warp that stretches one direction much more than the other: the views see the surface
+  // at very different angles, where the fronto-parallel model of the anchor is least right.
+  const Eigen::Vector2d sv = Eigen::JacobiSVD<Eigen::Matrix2d>(A).singularValues();
+  if (sv(0) > opts_.align_max_anisotropy * sv(1)) return AlignOutcome::kRefused;
   features::WarpedPatch ref{};
   Eigen::Vector2f uv(static_cast<float>((kp.x + 0.5) / level_to_x0_[lc] - 0.5),
                      static_cast<float>((kp.y + 0.5) / level_to_y0_[lc] - 0.5));

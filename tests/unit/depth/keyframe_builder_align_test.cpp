@@ -60,9 +60,10 @@ struct Outcome {
   int checked = 0;          // keypoints of view B compared with their truth
   double median_error = 0;  // px, level 0, over them
   std::uint64_t aligned = 0;
+  std::uint64_t refused = 0;
 };
 
-Outcome run(bool align) {
+Outcome run(bool align, double max_anisotropy = DepthOptions{}.align_max_anisotropy) {
   Views v;
   map::MapOptions mo;
   mo.max_points = 4000;
@@ -75,6 +76,7 @@ Outcome run(bool align) {
   for (int l = 0; l < ex.value()->num_levels(); ++l) sigma2.push_back(ex.value()->level_sigma2(l));
   DepthOptions opts;
   opts.align_keypoints = align;
+  opts.align_max_anisotropy = max_anisotropy;
   KeyframeBuilder builder(opts, "rgbd", map, sigma2);
   EXPECT_TRUE(builder.init().is_ok());
 
@@ -139,6 +141,7 @@ Outcome run(bool align) {
   EXPECT_TRUE(rb.ok);
   Outcome out;
   out.aligned = builder.totals().aligned_keypoints;
+  out.refused = builder.totals().align_refused;
   std::vector<double> err;
   const auto stored = map.keyframe_keypoints(rb.keyframe);
   for (int k = 0; k < m; ++k) {
@@ -167,6 +170,11 @@ TEST(KeyframeBuilderAlign, MovesDetectionsOntoTheAnchoredPoints) {
   // (it was 0.85 px off).
   EXPECT_GT(on.aligned, static_cast<std::uint64_t>(on.checked) * 2 / 3);
   EXPECT_LT(on.median_error, 0.2) << "aligned " << on.aligned << " of " << on.checked;
+  // A warp may not stretch one direction at all more than the other: nothing is aligned.
+  const Outcome strict = run(true, 1.0);
+  EXPECT_EQ(strict.aligned, 0U);
+  EXPECT_GT(strict.refused, static_cast<std::uint64_t>(strict.checked) / 2);
+  EXPECT_NEAR(strict.median_error, kDetectionOffsetPx * std::sqrt(2.0), 1e-3);
 }
 
 }  // namespace
