@@ -358,6 +358,12 @@ void KeyframeBuilder::build_pyramid(const cv::Mat& gray) {
   }
 }
 
+Eigen::Vector2f KeyframeBuilder::to_level(const features::Keypoint& kp, std::size_t l) const {
+  // Pixel centres aligned, as the extractor places keypoints (orb_extractor.cpp).
+  return {static_cast<float>((kp.x + 0.5) / level_to_x0_[l] - 0.5),
+          static_cast<float>((kp.y + 0.5) / level_to_y0_[l] - 0.5)};
+}
+
 const std::vector<cv::Mat>* KeyframeBuilder::keyframe_levels(map::KeyframeId kf) const {
   for (const KeyframeImage& img : images_) {
     if (img.kf == kf && img.kf != map::kNoId && map_.keyframe_generation(kf) == img.gen) {
@@ -373,9 +379,9 @@ bool KeyframeBuilder::sample_anchor(const std::vector<cv::Mat>& levels,
   const double z = (T_w_a.inverse() * p_w).z();
   const auto l =
       static_cast<std::size_t>(std::clamp<int>(kp.level, 0, static_cast<int>(levels.size()) - 1));
-  const auto x = static_cast<float>((kp.x + 0.5) / level_to_x0_[l] - 0.5);
-  const auto y = static_cast<float>((kp.y + 0.5) / level_to_y0_[l] - 0.5);
-  if (!(z > 0.0) || !features::sample_anchor_patch(levels[l], x, y, out.pixels, out.centre))
+  const Eigen::Vector2f at = to_level(kp, l);
+  if (!(z > 0.0) ||
+      !features::sample_anchor_patch(levels[l], at.x(), at.y(), out.pixels, out.centre))
     return false;
   out.q_w_a = Eigen::Quaternionf(T_w_a.rotation().cast<float>());
   out.level = static_cast<std::int8_t>(l);
@@ -425,8 +431,7 @@ KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
   const Eigen::Vector2d sv = Eigen::JacobiSVD<Eigen::Matrix2d>(A).singularValues();
   if (sv(0) > opts_.align_max_anisotropy * sv(1)) return AlignOutcome::kRefused;
   features::WarpedPatch ref{};
-  Eigen::Vector2f uv(static_cast<float>((kp.x + 0.5) / level_to_x0_[lc] - 0.5),
-                     static_cast<float>((kp.y + 0.5) / level_to_y0_[lc] - 0.5));
+  Eigen::Vector2f uv = to_level(kp, lc);
   const Eigen::Vector2f start = uv;
   if (!features::warp_anchor_patch(a.pixels, a.centre, A.inverse().cast<float>(), ref)) {
     return AlignOutcome::kRefused;

@@ -112,6 +112,8 @@ class KeyframeBuilder {
   enum class AlignOutcome : std::uint8_t { kAligned, kRefused };
   void build_pyramid(const cv::Mat& gray);
   const std::vector<cv::Mat>* keyframe_levels(map::KeyframeId kf) const;
+  // Keypoint position in pixels of pyramid level l of the keyframe images.
+  Eigen::Vector2f to_level(const features::Keypoint& kp, std::size_t l) const;
   bool sample_anchor(const std::vector<cv::Mat>& levels, const features::Keypoint& kp,
                      const SE3d& T_w_a, const Eigen::Vector3d& p_w, double fx, Anchor& out) const;
   AlignOutcome align_to_anchor(const Anchor& a, const std::vector<cv::Mat>& levels,
