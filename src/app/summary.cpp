@@ -188,9 +188,11 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"merged_points\": " << m.merged_points
     << ", \"view_observations\": " << m.view_observations
     << ", \"aligned_keypoints\": " << m.aligned_keypoints
-    << ", \"align_refused\": " << m.align_refused << ", \"depth_valid\": " << m.depth_valid
-    << ", \"depth_missing\": " << m.depth_missing << ", \"depth_errors\": " << m.depth_errors
-    << ", \"live_keyframes\": " << st.map.live_keyframes
+    << ", \"align_refused\": " << m.align_refused
+    << ", \"align_refused_residual\": " << m.align_refused_residual
+    << ", \"align_refused_shift\": " << m.align_refused_shift
+    << ", \"depth_valid\": " << m.depth_valid << ", \"depth_missing\": " << m.depth_missing
+    << ", \"depth_errors\": " << m.depth_errors << ", \"live_keyframes\": " << st.map.live_keyframes
     << ", \"live_points\": " << st.map.live_points
     << ", \"keyframe_slots_used\": " << st.map.keyframe_slots_used
     << ", \"point_slots_used\": " << st.map.point_slots_used

@@ -146,7 +146,7 @@ struct DepthOptions {
   std::string fuse_merge_duplicates = "auto";
   /// Align each point's keypoint in a new keyframe to the point's anchor patch (its
   /// appearance in the first keyframe that observed it, warped by the views' geometry).
-  bool align_keypoints = false;
+  bool align_keypoints = true;
   double align_max_shift_px = 1.5;    ///< largest move of an aligned keypoint, px of its level
   int align_keyframe_images = 8;      ///< recent keyframe images kept for aligning new points
   double align_max_rms = 6.0;         ///< largest RMS intensity residual of an accepted alignment
@@ -198,7 +198,7 @@ struct DepthOptions {
             "views' relative pose) aligns best, and a new point's keypoints in older keyframes "
             "likewise, so every keyframe measures the same surface point rather than each its "
             "own detection (map.max_points anchor patches of about 300 bytes are allocated "
-            "when on; off by default: see README, keypoint alignment)");
+            "when on; see README, keypoint alignment)");
     v.field("align_max_shift_px", align_max_shift_px,
             "an alignment that moves a keypoint farther than this (px of its pyramid level) is "
             "refused and the detection kept",

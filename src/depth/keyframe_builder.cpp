@@ -438,13 +438,14 @@ KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
   }
   const features::AlignResult r =
       features::align_patch(levels[lc], ref, kAlignIterations, kAlignTolerancePx, uv);
+  if (r.iterations == 0) return AlignOutcome::kRefused;  // left the image, or no texture
   if (!r.converged || static_cast<double>(r.rms) > opts_.align_max_rms) {
-    return AlignOutcome::kRefused;
+    return AlignOutcome::kRefusedResidual;
   }
   const double dx = (uv.x() - start.x()) * level_to_x0_[lc];
   const double dy = (uv.y() - start.y()) * level_to_y0_[lc];
   const double max_shift = opts_.align_max_shift_px * static_cast<double>(kp.scale);
-  if (dx * dx + dy * dy > max_shift * max_shift) return AlignOutcome::kRefused;
+  if (dx * dx + dy * dy > max_shift * max_shift) return AlignOutcome::kRefusedShift;
   kp.x += static_cast<float>(dx);
   kp.y += static_cast<float>(dy);
   return AlignOutcome::kAligned;
@@ -452,7 +453,9 @@ KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
 
 void KeyframeBuilder::count(AlignOutcome o, KeyframeBuildReport& rep) {
   if (o == AlignOutcome::kAligned) ++rep.aligned_keypoints;
-  if (o == AlignOutcome::kRefused) ++rep.align_refused;
+  if (o != AlignOutcome::kAligned) ++rep.align_refused;
+  if (o == AlignOutcome::kRefusedResidual) ++rep.align_refused_residual;
+  if (o == AlignOutcome::kRefusedShift) ++rep.align_refused_shift;
 }
 
 void KeyframeBuilder::align_tracked(const map::KeyframeJob& job, KeyframeBuildReport& rep) {
@@ -726,6 +729,8 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
   totals_.view_observations += static_cast<std::uint64_t>(rep.view_observations);
   totals_.aligned_keypoints += static_cast<std::uint64_t>(rep.aligned_keypoints);
   totals_.align_refused += static_cast<std::uint64_t>(rep.align_refused);
+  totals_.align_refused_residual += static_cast<std::uint64_t>(rep.align_refused_residual);
+  totals_.align_refused_shift += static_cast<std::uint64_t>(rep.align_refused_shift);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
   totals_.total_ms += ms;
   totals_.max_ms = std::max(totals_.max_ms, ms);

@@ -39,13 +39,15 @@ struct KeyframeBuildReport {
   int merged_points = 0;                 ///< duplicate points merged (depth.fuse_merge_duplicates)
   int depth_valid = 0;                   ///< keypoints that got a depth
   int new_points = 0;                    ///< map-points created
-  int view_observations = 0;   ///< observations of new points in other agreeing neighbours
-  int aligned_keypoints = 0;   ///< keypoints moved onto their point's anchor (align_keypoints)
-  int align_refused = 0;       ///< alignments tried and refused (detection kept)
-  int neighbours = 0;          ///< views given to depth inference
-  int scale_samples = 0;       ///< 3D-2D matches used for the scale ratio
-  double scale_ratio = 1.0;    ///< map depth / inferred depth (median)
-  bool scale_applied = false;  ///< the ratio was applied to the depth
+  int view_observations = 0;       ///< observations of new points in other agreeing neighbours
+  int aligned_keypoints = 0;       ///< keypoints moved onto their point's anchor (align_keypoints)
+  int align_refused = 0;           ///< alignments tried and refused (detection kept); of these:
+  int align_refused_residual = 0;  ///< not converged or above depth.align_max_rms
+  int align_refused_shift = 0;     ///< moved farther than depth.align_max_shift_px
+  int neighbours = 0;              ///< views given to depth inference
+  int scale_samples = 0;           ///< 3D-2D matches used for the scale ratio
+  double scale_ratio = 1.0;        ///< map depth / inferred depth (median)
+  bool scale_applied = false;      ///< the ratio was applied to the depth
 };
 
 /// Totals over the run (summary.json `mapping`).
@@ -58,7 +60,9 @@ struct KeyframeBuildTotals {
   std::uint64_t merged_points = 0;       ///< duplicates merged (depth.fuse_merge_duplicates)
   std::uint64_t view_observations = 0;   ///< of new points, beyond their first two views
   std::uint64_t aligned_keypoints = 0;   ///< keypoints aligned to their point's anchor patch
-  std::uint64_t align_refused = 0;       ///< alignments refused (detection kept)
+  std::uint64_t align_refused = 0;       ///< alignments refused (detection kept); of these:
+  std::uint64_t align_refused_residual = 0;  ///< not converged or above align_max_rms
+  std::uint64_t align_refused_shift = 0;     ///< moved farther than align_max_shift_px
   std::uint64_t depth_valid = 0;
   std::uint64_t depth_missing = 0;  ///< keyframes the backend had no input for (no depth map)
   std::uint64_t depth_errors = 0;   ///< keyframes whose depth inference failed otherwise
@@ -109,7 +113,9 @@ class KeyframeBuilder {
   // them) gets one here, and the new points' observations in older keyframes still in the
   // ring are aligned to it.
   struct Anchor;
-  enum class AlignOutcome : std::uint8_t { kAligned, kRefused };
+  // kRefused: the geometry (point behind a view, warp too anisotropic or leaving the anchor,
+  // patch leaving the image or without texture).
+  enum class AlignOutcome : std::uint8_t { kAligned, kRefused, kRefusedResidual, kRefusedShift };
   void build_pyramid(const cv::Mat& gray);
   const std::vector<cv::Mat>* keyframe_levels(map::KeyframeId kf) const;
   // Keypoint position in pixels of pyramid level l of the keyframe images.

@@ -2,6 +2,7 @@
 // detections of the first one's points, each off by a known amount, are moved onto the
 // points' true projections.
 #include <cmath>
+#include <functional>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -61,9 +62,11 @@ struct Outcome {
   double median_error = 0;  // px, level 0, over them
   std::uint64_t aligned = 0;
   std::uint64_t refused = 0;
+  std::uint64_t refused_residual = 0;
+  std::uint64_t refused_shift = 0;
 };
 
-Outcome run(bool align, double max_anisotropy = DepthOptions{}.align_max_anisotropy) {
+Outcome run(bool align, const std::function<void(DepthOptions&)>& tweak = {}) {
   Views v;
   map::MapOptions mo;
   mo.max_points = 4000;
@@ -76,7 +79,7 @@ Outcome run(bool align, double max_anisotropy = DepthOptions{}.align_max_anisotr
   for (int l = 0; l < ex.value()->num_levels(); ++l) sigma2.push_back(ex.value()->level_sigma2(l));
   DepthOptions opts;
   opts.align_keypoints = align;
-  opts.align_max_anisotropy = max_anisotropy;
+  if (tweak) tweak(opts);
   KeyframeBuilder builder(opts, "rgbd", map, sigma2);
   EXPECT_TRUE(builder.init().is_ok());
 
@@ -142,6 +145,8 @@ Outcome run(bool align, double max_anisotropy = DepthOptions{}.align_max_anisotr
   Outcome out;
   out.aligned = builder.totals().aligned_keypoints;
   out.refused = builder.totals().align_refused;
+  out.refused_residual = builder.totals().align_refused_residual;
+  out.refused_shift = builder.totals().align_refused_shift;
   std::vector<double> err;
   const auto stored = map.keyframe_keypoints(rb.keyframe);
   for (int k = 0; k < m; ++k) {
@@ -171,10 +176,26 @@ TEST(KeyframeBuilderAlign, MovesDetectionsOntoTheAnchoredPoints) {
   EXPECT_GT(on.aligned, static_cast<std::uint64_t>(on.checked) * 2 / 3);
   EXPECT_LT(on.median_error, 0.2) << "aligned " << on.aligned << " of " << on.checked;
   // A warp may not stretch one direction at all more than the other: nothing is aligned.
-  const Outcome strict = run(true, 1.0);
+  const Outcome strict = run(true, [](DepthOptions& o) { o.align_max_anisotropy = 1.0; });
   EXPECT_EQ(strict.aligned, 0U);
   EXPECT_GT(strict.refused, static_cast<std::uint64_t>(strict.checked) / 2);
+  EXPECT_EQ(strict.refused_residual + strict.refused_shift, 0U);  // all by the geometry
   EXPECT_NEAR(strict.median_error, kDetectionOffsetPx * std::sqrt(2.0), 1e-3);
+}
+
+TEST(KeyframeBuilderAlign, CountsEachGateItsRefusals) {
+  // A residual gate no real patch pair passes: every refusal past the geometry is residual.
+  const Outcome rms = run(true, [](DepthOptions& o) { o.align_max_rms = 1e-3; });
+  ASSERT_GT(rms.checked, 100);
+  EXPECT_EQ(rms.aligned, 0U);
+  EXPECT_GT(rms.refused_residual, static_cast<std::uint64_t>(rms.checked) * 2 / 3);
+  EXPECT_EQ(rms.refused_shift, 0U);
+  // A shift limit below the detections' 1.2 px offset (0.3 px x the level's scale): most
+  // converged alignments are refused by it, the few left moved less than it allows.
+  const Outcome shift = run(true, [](DepthOptions& o) { o.align_max_shift_px = 0.3; });
+  EXPECT_GT(shift.refused_shift, static_cast<std::uint64_t>(shift.checked) / 2);
+  EXPECT_LT(shift.aligned, shift.refused_shift / 4);
+  EXPECT_LE(shift.refused_residual + shift.refused_shift, shift.refused);
 }
 
 }  // namespace
