@@ -455,7 +455,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       if (obs[o].second >= kps.size()) continue;
       const features::Keypoint& kp = kps[obs[o].second];
       const double inv_sigma =
-          1.0 / std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level)));
+          1.0 / (std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level))) *
+                 (kp.anchored != 0 ? opts_.anchored_sigma_scale : 1.0));
       PoseBlock& b = poses[it->second].second;
       // A point behind (or on) a camera that observes it cannot be evaluated: leave that
       // observation out (a solve whose first evaluation fails does nothing at all).

@@ -69,6 +69,7 @@ struct LocalBaOptions {
   int max_iterations = 10;            ///< Levenberg-Marquardt iterations per solve
   double max_time_ms = 50.0;          ///< wall-time budget of one run (all solves), ms
   double huber_sigmas = 2.45;         ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
+  double anchored_sigma_scale = 1.0;  ///< sigma of an anchored keypoint, x its level's sigma
   double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
   int min_inlier_observations = 2;    ///< points with fewer consistent observations are culled
   int full_max_iterations = 100;      ///< iterations of a full-graph optimization (--final-ba)
@@ -95,6 +96,12 @@ struct LocalBaOptions {
             options::Range<double>{0.1, 100.0});
     v.field("outlier_chi2", outlier_chi2, "squared error / sigma^2 above this is an outlier",
             options::Range<double>{0.1, 1000.0});
+    v.field("anchored_sigma_scale", anchored_sigma_scale,
+            "sigma of a keypoint that measures its point's anchor (depth.align_keypoints: the "
+            "anchor's detection or aligned to it), as a multiple of its pyramid level's sigma; "
+            "below 1 such keypoints weigh more than independent detections, whose errors "
+            "across views are correlated (kernel and outlier gate follow the sigma)",
+            options::Range<double>{0.05, 10.0});
     v.field("min_inlier_observations", min_inlier_observations,
             "points with fewer consistent observations are culled", options::Range<int>{1, 100});
     v.field("full_max_iterations", full_max_iterations,

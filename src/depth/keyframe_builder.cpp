@@ -448,6 +448,7 @@ KeyframeBuilder::AlignOutcome KeyframeBuilder::align_to_anchor(
   if (dx * dx + dy * dy > max_shift * max_shift) return AlignOutcome::kRefusedShift;
   kp.x += static_cast<float>(dx);
   kp.y += static_cast<float>(dy);
+  kp.anchored = 1;
   return AlignOutcome::kAligned;
 }
 
@@ -491,6 +492,7 @@ void KeyframeBuilder::set_anchors(const map::KeyframeJob& job, map::KeyframeId k
     a.kf = kf;
     a.kf_gen = img.gen;
     a.point_gen = g;
+    (void)map_.set_keypoint_anchored(kf, static_cast<std::uint32_t>(i), true);
   }
 }
 
@@ -512,7 +514,9 @@ void KeyframeBuilder::align_new_observations(const geometry::Pinhole& K, Keyfram
     features::Keypoint kp = kps[o.kp];
     const AlignOutcome out = align_to_anchor(a, *levels, pv.p_w, T_w_v.inverse(), K, kp);
     count(out, rep);
-    if (out == AlignOutcome::kAligned) (void)map_.set_keypoint_position(o.kf, o.kp, kp.x, kp.y);
+    if (out == AlignOutcome::kAligned && map_.set_keypoint_position(o.kf, o.kp, kp.x, kp.y)) {
+      (void)map_.set_keypoint_anchored(o.kf, o.kp, true);
+    }
   }
 }
 

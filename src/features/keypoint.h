@@ -33,7 +33,11 @@ struct Keypoint {
   float angle_rad = 0.0F;  ///< orientation (intensity centroid), radians
   float response = 0.0F;   ///< detector score (higher is stronger)
   std::int8_t level = 0;   ///< pyramid level it was detected at
-  float scale = 1.0F;      ///< scale factor of that level (scale_factor^level)
+  /// 1: a map keypoint that measures its point's anchor (the anchor's own detection, or
+  /// aligned to it: depth.align_keypoints), so it agrees with the point's other anchored
+  /// keypoints more closely than independent detections do; 0 otherwise.
+  std::uint8_t anchored = 0;
+  float scale = 1.0F;  ///< scale factor of that level (scale_factor^level)
 };
 
 }  // namespace mer::features

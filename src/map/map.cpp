@@ -421,6 +421,12 @@ bool Map::set_keypoint_position(KeyframeId kf, std::uint32_t kp, float x, float 
   return true;
 }
 
+bool Map::set_keypoint_anchored(KeyframeId kf, std::uint32_t kp, bool anchored) {
+  if (!valid_keypoint(kf, kp)) return false;
+  kf_keypoints_[kp_index(kf, kp)].anchored = anchored ? 1 : 0;
+  return true;
+}
+
 void Map::set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence) {
   if (!valid_keypoint(kf, kp)) return;
   kf_depth_[kp_index(kf, kp)].store(depth, std::memory_order_relaxed);
@@ -434,8 +440,12 @@ void Map::set_point_bad(PointId p) {
   point_cell_[p] = kNoCell;
   const Observation* o = &obs_[std::size_t{p} * max_obs_];
   for (std::uint32_t i = 0; i < obs_count_[p]; ++i) {
-    std::atomic<PointId>& assoc = kf_points_[kp_index(o[i].kf(), o[i].kp())];
-    if (load_own(assoc) == p) assoc.store(kNoId, std::memory_order_release);
+    const std::size_t at = kp_index(o[i].kf(), o[i].kp());
+    std::atomic<PointId>& assoc = kf_points_[at];
+    if (load_own(assoc) == p) {
+      assoc.store(kNoId, std::memory_order_release);
+      kf_keypoints_[at].anchored = 0;
+    }
   }
   obs_count_[p] = 0;
   live_pts_.store(load_own(live_pts_) - 1U, std::memory_order_relaxed);

@@ -238,6 +238,11 @@ class Map {
   /// and point descriptors are unaffected. False for an unknown keyframe or keypoint, or a
   /// non-finite position.
   bool set_keypoint_position(KeyframeId kf, std::uint32_t kp, float x, float y);
+  /// Marks keypoint kp of kf as measuring its point's anchor (Keypoint::anchored), or not.
+  /// Writer-lock holders only, like positions. A point freed by set_point_bad clears the mark
+  /// of every keypoint that observed it (a later association starts as a detection). False
+  /// for an unknown keyframe or keypoint.
+  bool set_keypoint_anchored(KeyframeId kf, std::uint32_t kp, bool anchored);
   /// Records a world-frame correction (a loop closure moved the map by S_new_old around the
   /// newest keyframes): the cumulative correction becomes S_new_old * previous. Readers that
   /// keep poses of their own (the tracker's last pose) move them by the part they missed.

@@ -64,6 +64,8 @@ struct Outcome {
   std::uint64_t refused = 0;
   std::uint64_t refused_residual = 0;
   std::uint64_t refused_shift = 0;
+  int anchored_a = 0;  // keypoints of keyframe A marked anchored (the anchors' own)
+  int anchored_b = 0;  // of keyframe B (aligned to an anchor)
 };
 
 Outcome run(bool align, const std::function<void(DepthOptions&)>& tweak = {}) {
@@ -155,6 +157,9 @@ Outcome run(bool align, const std::function<void(DepthOptions&)>& tweak = {}) {
                              kp.y - truth[static_cast<std::size_t>(k)].y()));
   }
   out.checked = m;
+  for (const features::Keypoint& kp : map.keyframe_keypoints(ra.keyframe))
+    out.anchored_a += kp.anchored;
+  for (const features::Keypoint& kp : stored) out.anchored_b += kp.anchored;
   if (!err.empty()) {
     std::nth_element(err.begin(), err.begin() + static_cast<std::ptrdiff_t>(err.size() / 2),
                      err.end());
@@ -169,12 +174,17 @@ TEST(KeyframeBuilderAlign, MovesDetectionsOntoTheAnchoredPoints) {
   ASSERT_GT(on.checked, 100);
   // Off: the detections stay where they were given.
   EXPECT_EQ(off.aligned, 0U);
+  EXPECT_EQ(off.anchored_a + off.anchored_b, 0);
   EXPECT_NEAR(off.median_error, kDetectionOffsetPx * std::sqrt(2.0), 1e-3);
   // On: most are aligned (the residual gate, depth.align_max_rms, refuses some where the
   // views differ most), and the median keypoint lands within a fifth of a pixel of the truth
   // (it was 0.85 px off).
   EXPECT_GT(on.aligned, static_cast<std::uint64_t>(on.checked) * 2 / 3);
   EXPECT_LT(on.median_error, 0.2) << "aligned " << on.aligned << " of " << on.checked;
+  // The anchors' own keypoints (A) and the aligned ones (B) are marked for the BA's weight
+  // (backend.anchored_sigma_scale); B's refused ones stay detections.
+  EXPECT_GT(on.anchored_a, 100);
+  EXPECT_EQ(static_cast<std::uint64_t>(on.anchored_b), on.aligned);
   // A warp may not stretch one direction at all more than the other: nothing is aligned.
   const Outcome strict = run(true, [](DepthOptions& o) { o.align_max_anisotropy = 1.0; });
   EXPECT_EQ(strict.aligned, 0U);

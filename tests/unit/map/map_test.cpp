@@ -182,6 +182,26 @@ TEST(Map, KeypointMoveChangesOnlyThatKeypoint) {
   EXPECT_EQ(m.keyframe_keypoints(kf)[0].x, d.kps[0].x);
 }
 
+TEST(Map, AnchoredMarkIsClearedWithItsPoint) {
+  Map m(small_options());
+  const KfData d = make_kf(10, 1);
+  const KeyframeId kf = add_kf(m, d, pose_at(1.0, 0.3), 42);
+  EXPECT_EQ(m.keyframe_keypoints(kf)[3].anchored, 0);  // a detection
+  const auto p = m.add_point(Eigen::Vector3d(0.1, 0.2, 3.0), kf, 3);
+  ASSERT_TRUE(p.is_ok());
+  ASSERT_TRUE(m.set_keypoint_anchored(kf, 3, true));
+  ASSERT_TRUE(m.set_keypoint_anchored(kf, 4, true));
+  EXPECT_FALSE(m.set_keypoint_anchored(kf, 10, true));  // no such keypoint
+  EXPECT_EQ(m.keyframe_keypoints(kf)[3].anchored, 1);
+  // Freeing the point clears the mark of its keypoint only: a later association of that
+  // keypoint starts as a detection.
+  m.set_point_bad(p.value());
+  EXPECT_EQ(m.keyframe_keypoints(kf)[3].anchored, 0);
+  EXPECT_EQ(m.keyframe_keypoints(kf)[4].anchored, 1);
+  ASSERT_TRUE(m.set_keypoint_anchored(kf, 4, false));
+  EXPECT_EQ(m.keyframe_keypoints(kf)[4].anchored, 0);
+}
+
 TEST(Map, AddKeyframeErrorsNameTheOption) {
   MapOptions o = small_options();
   o.max_keyframes = 2;
