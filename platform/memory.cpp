@@ -1,6 +1,9 @@
 #include "platform/memory.h"
 
 #include <sys/mman.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <cerrno>
 #include <cstring>
@@ -33,6 +36,27 @@ bool unlock_memory(std::string* error) {
     return false;
   }
   return true;
+}
+
+bool set_mmap_threshold(std::size_t bytes, std::string* error) {
+  if (bytes == 0 || bytes > kMaxMmapThresholdBytes) {
+    if (error != nullptr) {
+      *error = "mmap threshold " + std::to_string(bytes) + " bytes: expected 1.." +
+               std::to_string(kMaxMmapThresholdBytes);
+    }
+    return false;
+  }
+#if defined(__GLIBC__)
+  if (::mallopt(M_MMAP_THRESHOLD, static_cast<int>(bytes)) != 1) {
+    if (error != nullptr)
+      *error = "mallopt(M_MMAP_THRESHOLD, " + std::to_string(bytes) + ") failed";
+    return false;
+  }
+  return true;
+#else
+  if (error != nullptr) *error = "mmap threshold: not supported by this C library";
+  return false;
+#endif
 }
 
 }  // namespace mer::platform

@@ -172,10 +172,12 @@ Status write_final_trajectory(const std::string& dir,
 
 Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
                     pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
-                    AccuracyReport& converged, AccuracyReport& shuffled) {
+                    AccuracyReport& converged, AccuracyReport& shuffled,
+                    AccuracyReport& shuffled_detected) {
   const std::filesystem::path d(dir);
-  constexpr std::array<const char*, 2> kFiles{"keyframes_gt_converged.txt",
-                                              "keyframes_gt_shuffled.txt"};
+  constexpr std::array<const char*, 3> kFiles{"keyframes_gt_converged.txt",
+                                              "keyframes_gt_shuffled.txt",
+                                              "keyframes_gt_shuffled_detected.txt"};
   std::error_code ec;
   for (const char* name : kFiles) std::filesystem::remove(d / name, ec);  // no stale result
   const std::string gt_path = (d / "groundtruth.txt").string();
@@ -190,10 +192,13 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
   }
   report = pipe.check_against_groundtruth(gt.value().poses);
   if (!report.ran) return Status::ok();
-  const std::array<const std::vector<StampedPose>*, 2> poses{&report.converged, &report.shuffled};
-  const std::array<AccuracyReport*, 2> scores{&converged, &shuffled};
+  const std::array<const std::vector<StampedPose>*, 3> poses{&report.converged, &report.shuffled,
+                                                             &report.shuffled_detected};
+  const std::array<AccuracyReport*, 3> scores{&converged, &shuffled, &shuffled_detected};
   converged.note = shuffled.note = "not written";
+  shuffled_detected.note = "not run: no anchored keypoints, or only anchored ones";
   for (std::size_t i = 0; i < kFiles.size(); ++i) {
+    if (poses[i]->empty()) continue;  // step 5 did not run
     hal::Trajectory t;
     t.poses = *poses[i];
     if (Status s = hal::save_tum_trajectory((d / kFiles[i]).string(), t); !s.is_ok()) {

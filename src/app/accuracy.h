@@ -56,6 +56,7 @@ Status write_final_trajectory(const std::string& dir,
 /// `report.note` and is not an error; a file that cannot be written is.
 Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
                     pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
-                    AccuracyReport& converged, AccuracyReport& shuffled);
+                    AccuracyReport& converged, AccuracyReport& shuffled,
+                    AccuracyReport& shuffled_detected);
 
 }  // namespace mer::app

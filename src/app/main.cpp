@@ -145,7 +145,8 @@ int main(int argc, char** argv) {
         info.gt_check.note = "stopped by a signal";  // the summary is due now
       } else {
         g = app::run_gt_check(args.output_dir, config.pipeline.mode, pipe, info.gt_check,
-                              info.accuracy_gt_converged, info.accuracy_gt_shuffled);
+                              info.accuracy_gt_converged, info.accuracy_gt_shuffled,
+                              info.accuracy_gt_shuffled_detected);
       }
       if (!g.is_ok()) {
         std::cerr << "mer_slam: error: --gt-check: " << g.message() << "\n";

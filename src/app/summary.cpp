@@ -132,10 +132,15 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
       for (std::size_t l = 0; l < g.levels.size(); ++l) {
         j << (l > 0 ? ", " : "") << g.levels[l].observations;
       }
-      j << "], \"iterations_converged\": " << g.iterations_converged
-        << ", \"iterations_shuffled\": " << g.iterations_shuffled << "},\n";
+      j << "], \"anchored_observations\": " << g.anchored_observations
+        << ", \"anchored_rms_level_px\": " << num(g.anchored_rms_level_px)
+        << ", \"detected_rms_level_px\": " << num(g.detected_rms_level_px)
+        << ", \"iterations_converged\": " << g.iterations_converged
+        << ", \"iterations_shuffled\": " << g.iterations_shuffled
+        << ", \"iterations_shuffled_detected\": " << g.iterations_shuffled_detected << "},\n";
       accuracy_json("accuracy_gt_converged", info.accuracy_gt_converged);
       accuracy_json("accuracy_gt_shuffled", info.accuracy_gt_shuffled);
+      accuracy_json("accuracy_gt_shuffled_detected", info.accuracy_gt_shuffled_detected);
     } else {
       j << "  \"gt_check\": {\"note\": " << json_string(g.note) << "},\n";
     }
@@ -313,13 +318,19 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
          << " points): keypoint error RMS per level";
       for (const auto& l : g.levels) os << " " << std::setprecision(2) << l.rms_level_px;
       os << " level px; " << std::setprecision(1) << 100.0 * g.beyond_1_level_px << " % beyond 1, "
-         << 100.0 * g.beyond_2_level_px << " % beyond 2\n";
+         << 100.0 * g.beyond_2_level_px << " % beyond 2\n"
+         << "    anchored keypoints: " << g.anchored_observations << " observations, RMS "
+         << std::setprecision(2) << g.anchored_rms_level_px << " level px (the others "
+         << g.detected_rms_level_px << ")\n";
       const AccuracyReport& c = info.accuracy_gt_converged;
       const AccuracyReport& s = info.accuracy_gt_shuffled;
       if (c.available && s.available) {
         os << "    full BA from the truth: keyframe ATE " << std::setprecision(3)
            << c.ate_pct_of_path << " % of path; keypoint errors shuffled: " << s.ate_pct_of_path
-           << " %\n";
+           << " %";
+        const AccuracyReport& sd = info.accuracy_gt_shuffled_detected;
+        if (sd.available) os << "; only detected ones shuffled: " << sd.ate_pct_of_path << " %";
+        os << "\n";
       }
     }
   }

@@ -36,9 +36,10 @@ struct RunInfo {
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
   AccuracyReport accuracy_final;    ///< ATE of trajectory_final.txt (frames on the final map)
   bool gt_check_requested = false;  ///< --gt-check
-  backend::GroundTruthCheckReport gt_check;  ///< its result
-  AccuracyReport accuracy_gt_converged;      ///< ATE of keyframes_gt_converged.txt
-  AccuracyReport accuracy_gt_shuffled;       ///< ATE of keyframes_gt_shuffled.txt
+  backend::GroundTruthCheckReport gt_check;      ///< its result
+  AccuracyReport accuracy_gt_converged;          ///< ATE of keyframes_gt_converged.txt
+  AccuracyReport accuracy_gt_shuffled;           ///< ATE of keyframes_gt_shuffled.txt
+  AccuracyReport accuracy_gt_shuffled_detected;  ///< of keyframes_gt_shuffled_detected.txt
 };
 
 /// Renders summary.json.

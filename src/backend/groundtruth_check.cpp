@@ -33,6 +33,7 @@ struct CheckedObservation {
   int level = 0;
   Eigen::Vector2d truth_uv = Eigen::Vector2d::Zero();
   Eigen::Vector2d error = Eigen::Vector2d::Zero();
+  bool anchored = false;
 };
 
 // splitmix64: a small, seedable generator (the shuffle must not depend on the platform).
@@ -195,6 +196,8 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   std::array<int, kMaxLevels> in_rms{};
   int beyond_1 = 0;
   int beyond_2 = 0;
+  std::array<double, 2> flag_sum2{};  // [0]: detected, [1]: anchored
+  std::array<int, 2> flag_in_rms{};
   for (const map::PointId p : points) {
     const std::size_t n = map.point_observations(p, obs);
     if (n < 2) continue;
@@ -223,14 +226,20 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
       c.level = std::clamp(static_cast<int>(kp.level), 0, static_cast<int>(kMaxLevels) - 1);
       c.truth_uv = K.project(p_c);
       c.error = Eigen::Vector2d(kp.x, kp.y) - c.truth_uv;
+      c.anchored = kp.anchored != 0;
       const double e_level = c.error.norm() / static_cast<double>(kp.scale);
       beyond_1 += e_level > 1.0 ? 1 : 0;
       beyond_2 += e_level > 2.0 ? 1 : 0;
       const auto level = static_cast<std::size_t>(c.level);
       ++count[level];
+      const std::size_t flag = kp.anchored != 0 ? 1 : 0;
+      rep.anchored_observations += static_cast<int>(flag);
       if (e_level <= kRmsCutLevelPx) {
-        sum2[level] += c.error.squaredNorm() / (static_cast<double>(kp.scale) * kp.scale);
+        const double e2 = c.error.squaredNorm() / (static_cast<double>(kp.scale) * kp.scale);
+        sum2[level] += e2;
         ++in_rms[level];
+        flag_sum2[flag] += e2;
+        ++flag_in_rms[flag];
       }
       checked.push_back(c);
     }
@@ -242,6 +251,9 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   }
   rep.beyond_1_level_px = static_cast<double>(beyond_1) / static_cast<double>(checked.size());
   rep.beyond_2_level_px = static_cast<double>(beyond_2) / static_cast<double>(checked.size());
+  auto rms = [](double s2, int n) { return n > 0 ? std::sqrt(s2 / (2.0 * n)) : 0.0; };
+  rep.detected_rms_level_px = rms(flag_sum2[0], flag_in_rms[0]);
+  rep.anchored_rms_level_px = rms(flag_sum2[1], flag_in_rms[1]);
   std::size_t top = 0;
   for (std::size_t level = 0; level < kMaxLevels; ++level) top = count[level] > 0 ? level + 1 : top;
   for (std::size_t level = 0; level < top; ++level) {
@@ -262,28 +274,38 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   rep.iterations_converged = r.iterations;
   rep.converged = map.live_keyframe_poses();
 
-  // 4. Errors shuffled within each level; back to the start; the full BA again.
-  std::array<std::vector<Eigen::Vector2d>, kMaxLevels> pool;
-  for (const CheckedObservation& c : checked) {
-    pool[static_cast<std::size_t>(c.level)].push_back(c.error);
-  }
-  std::uint64_t state = seed;
-  for (auto& errors : pool) {
-    for (std::size_t i = errors.size(); i > 1; --i) {
-      std::swap(errors[i - 1], errors[next_random(state) % i]);
+  // 4. Errors shuffled within each level; back to the start; the full BA again. With
+  //    `detected_only`, only the keypoints that are not anchored trade errors, among
+  //    themselves; anchored ones keep theirs (5.).
+  auto shuffle_and_solve = [&](bool detected_only, std::vector<StampedPose>& poses) {
+    auto shuffled = [&](const CheckedObservation& c) { return !detected_only || !c.anchored; };
+    std::array<std::vector<Eigen::Vector2d>, kMaxLevels> pool;
+    for (const CheckedObservation& c : checked) {
+      if (shuffled(c)) pool[static_cast<std::size_t>(c.level)].push_back(c.error);
     }
+    std::uint64_t state = seed;
+    for (auto& errors : pool) {
+      for (std::size_t i = errors.size(); i > 1; --i) {
+        std::swap(errors[i - 1], errors[next_random(state) % i]);
+      }
+    }
+    std::array<std::size_t, kMaxLevels> used{};
+    for (const CheckedObservation& c : checked) {
+      const auto level = static_cast<std::size_t>(c.level);
+      const Eigen::Vector2d uv = c.truth_uv + (shuffled(c) ? pool[level][used[level]++] : c.error);
+      map.set_keypoint_position(c.kf, c.kp, static_cast<float>(uv.x()), static_cast<float>(uv.y()));
+    }
+    for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
+    for (const auto& [p, X] : start) map.set_point_position(p, X);
+    const LocalBaReport rs = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
+    poses = map.live_keyframe_poses();
+    return rs.iterations;
+  };
+  rep.iterations_shuffled = shuffle_and_solve(false, rep.shuffled);
+  // 5. Only the detected keypoints' errors shuffled: where the pattern of step 4 lives.
+  if (rep.anchored_observations > 0 && rep.anchored_observations < rep.observations) {
+    rep.iterations_shuffled_detected = shuffle_and_solve(true, rep.shuffled_detected);
   }
-  std::array<std::size_t, kMaxLevels> used{};
-  for (const CheckedObservation& c : checked) {
-    const auto level = static_cast<std::size_t>(c.level);
-    const Eigen::Vector2d uv = c.truth_uv + pool[level][used[level]++];
-    map.set_keypoint_position(c.kf, c.kp, static_cast<float>(uv.x()), static_cast<float>(uv.y()));
-  }
-  for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
-  for (const auto& [p, X] : start) map.set_point_position(p, X);
-  r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
-  rep.iterations_shuffled = r.iterations;
-  rep.shuffled = map.live_keyframe_poses();
   rep.ran = true;
   return rep;
 }

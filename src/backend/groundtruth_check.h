@@ -27,6 +27,11 @@
 ///     several keyframes). The gap between `converged` and `shuffled` is what such patterns
 ///     cost. Only keypoints are shuffled: 3D-3D depth edges (RGB-D) keep their depths, and
 ///     with `backend.depth_edges: scaled` the depth scales step 3 folds in stay for step 4.
+///  5. When some checked keypoints are anchored (depth.align_keypoints) and some are not,
+///     step 4 again with only the keypoints that are not anchored trading errors, among
+///     themselves; anchored keypoints keep their own (`shuffled_detected`). Close to
+///     `shuffled`: the pattern lives in the detected keypoints; close to `converged`: in
+///     the anchored ones.
 /// The map is changed for good (poses, points and keypoints): the check runs after every
 /// output has been written, with no stage running.
 
@@ -64,10 +69,15 @@ struct GroundTruthCheckReport {
   double beyond_1_level_px = 0.0;  ///< fraction of observations off by more than 1 level px
   double beyond_2_level_px = 0.0;  ///< fraction off by more than 2 level px
   std::vector<GroundTruthLevelError> levels;  ///< per pyramid level
-  int iterations_converged = 0;               ///< full-BA iterations of step 3
-  int iterations_shuffled = 0;                ///< and of step 4
-  std::vector<StampedPose> converged;         ///< keyframe poses after step 3, map frame
-  std::vector<StampedPose> shuffled;          ///< keyframe poses after step 4, map frame
+  int anchored_observations = 0;              ///< checked observations whose keypoint is anchored
+  double anchored_rms_level_px = 0.0;    ///< RMS per axis (within 5 level px) of those, level px
+  double detected_rms_level_px = 0.0;    ///< and of the other checked observations, level px
+  int iterations_converged = 0;          ///< full-BA iterations of step 3
+  int iterations_shuffled = 0;           ///< and of step 4
+  std::vector<StampedPose> converged;    ///< keyframe poses after step 3, map frame
+  std::vector<StampedPose> shuffled;     ///< keyframe poses after step 4, map frame
+  int iterations_shuffled_detected = 0;  ///< full-BA iterations of step 5 (0: not run)
+  std::vector<StampedPose> shuffled_detected;  ///< keyframe poses after step 5 (empty: not run)
 };
 
 /// Runs the check (above) on `map` with `ba` (its options: robust kernel, outlier gate) for

@@ -448,6 +448,13 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     if (stop.stop()) break;
     std::array<double, 3>& X = pt.X;
     const std::size_t no = map_.point_observations(p, obs);
+    int anchored = 0;  // the point's anchored keypoints (anchored_min_observations)
+    for (std::size_t o = 0; o < no && opts_.anchored_sigma_scale != 1.0; ++o) {
+      const auto kps = map_.keyframe_keypoints(obs[o].first);
+      anchored += obs[o].second < kps.size() && kps[obs[o].second].anchored != 0 ? 1 : 0;
+    }
+    const double anchored_scale =
+        anchored >= opts_.anchored_min_observations ? opts_.anchored_sigma_scale : 1.0;
     for (std::size_t o = 0; o < no; ++o) {
       auto it = pose_index.find(obs[o].first);
       if (it == pose_index.end()) continue;
@@ -456,7 +463,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       const features::Keypoint& kp = kps[obs[o].second];
       const double inv_sigma =
           1.0 / (std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level))) *
-                 (kp.anchored != 0 ? opts_.anchored_sigma_scale : 1.0));
+                 (kp.anchored != 0 ? anchored_scale : 1.0));
       PoseBlock& b = poses[it->second].second;
       // A point behind (or on) a camera that observes it cannot be evaluated: leave that
       // observation out (a solve whose first evaluation fails does nothing at all).

@@ -70,6 +70,7 @@ struct LocalBaOptions {
   double max_time_ms = 50.0;          ///< wall-time budget of one run (all solves), ms
   double huber_sigmas = 2.45;         ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
   double anchored_sigma_scale = 1.0;  ///< sigma of an anchored keypoint, x its level's sigma
+  int anchored_min_observations = 3;  ///< anchored keypoints a point needs for that sigma
   double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
   int min_inlier_observations = 2;    ///< points with fewer consistent observations are culled
   int full_max_iterations = 100;      ///< iterations of a full-graph optimization (--final-ba)
@@ -102,6 +103,10 @@ struct LocalBaOptions {
             "below 1 such keypoints weigh more than independent detections, whose errors "
             "across views are correlated (kernel and outlier gate follow the sigma)",
             options::Range<double>{0.05, 10.0});
+    v.field("anchored_min_observations", anchored_min_observations,
+            "anchored keypoints a point needs among its observations before "
+            "anchored_sigma_scale applies to them (a young point has one or two)",
+            options::Range<int>{1, 100});
     v.field("min_inlier_observations", min_inlier_observations,
             "points with fewer consistent observations are culled", options::Range<int>{1, 100});
     v.field("full_max_iterations", full_max_iterations,

@@ -119,6 +119,12 @@ Status Pipeline::init(const std::string& output_dir) {
                             std::to_string(camera_.pool().capacity()));
   }
   if (Status v = map::validate(config_.map); !v.is_ok()) return v;  // e.g. table size
+  if (const int kb = config_.board.malloc_mmap_threshold_kb; kb > 0) {
+    std::string err;
+    if (!platform::set_mmap_threshold(static_cast<std::size_t>(kb) * 1024U, &err)) {
+      MER_LOG_WARN("board.malloc_mmap_threshold_kb: %s (continuing)", err.c_str());
+    }
+  }
   map_ = std::make_unique<map::Map>(config_.map);
   const hal::CameraIntrinsics& Kc = config_.intrinsics.fx > 0.0 ? config_.intrinsics : K;
   const geometry::Pinhole pinhole{Kc.fx, Kc.fy, Kc.cx, Kc.cy};

@@ -59,6 +59,10 @@ struct BoardOptions {
   int backend_core = -2;                ///< CPU for the back-end thread (-1: any, -2: from profile)
   int backend_priority = -1;            ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
   bool lock_memory = false;  ///< mlockall() at start (needs CAP_IPC_LOCK or a memlock limit)
+  /// Blocks of at least this many KiB get their own mapping, unmapped when freed (glibc
+  /// M_MMAP_THRESHOLD); 0 keeps the allocator's adaptive threshold, under which resident
+  /// memory creeps up over long runs.
+  int malloc_mmap_threshold_kb = 128;
   double capture_budget_ms =
       15.0;  ///< capture stage budget per frame, ms (incl. synthetic rendering)
   double tracking_budget_ms = 30.0;    ///< tracking stage budget per frame, ms
@@ -87,6 +91,11 @@ struct BoardOptions {
             "back-end SCHED_FIFO priority, keep it below tracking (0 normal, -1 profile)",
             options::Range<int>{-1, 99});
     v.field("lock_memory", lock_memory, "mlockall() at start");
+    v.field("malloc_mmap_threshold_kb", malloc_mmap_threshold_kb,
+            "heap blocks of at least this many KiB get their own mapping, returned to the "
+            "system when freed, so resident memory levels off on long runs (0: the "
+            "allocator's adaptive threshold)",
+            options::Range<int>{0, 32768});
     v.field("capture_budget_ms", capture_budget_ms, "capture budget per frame, ms",
             options::Range<double>{0.0, 10000.0});
     v.field("tracking_budget_ms", tracking_budget_ms, "tracking budget per frame, ms",

@@ -89,13 +89,21 @@ TEST(MerSlamSynthetic, GroundTruthCheckLeavesTheRunsOutputsAndScoresItsOwn) {
   const double rms0 = static_cast<double>(rms[0]);
   EXPECT_GT(rms0, 0.05) << "rendered keypoints are not exact";
   EXPECT_LT(rms0, 1.0);
-  for (const char* f : {"keyframes_gt_converged.txt", "keyframes_gt_shuffled.txt"}) {
+  // Keypoint alignment is on by default: some observations are anchored, none off the scale.
+  const int anchored = static_cast<int>(s["gt_check"]["anchored_observations"]);
+  EXPECT_GT(anchored, 0);
+  EXPECT_LT(anchored, static_cast<int>(s["gt_check"]["observations"]));
+  EXPECT_LT(static_cast<double>(s["gt_check"]["anchored_rms_level_px"]), 1.0);
+  EXPECT_LT(static_cast<double>(s["gt_check"]["detected_rms_level_px"]), 1.0);
+  for (const char* f : {"keyframes_gt_converged.txt", "keyframes_gt_shuffled.txt",
+                        "keyframes_gt_shuffled_detected.txt"}) {
     EXPECT_EQ(count_lines((checked / f).string()), keyframes + 1) << f;  // and a header
   }
   // RGB-D: depth pins the geometry, so the BA from the truth ends about where the run's own
   // final map is (measured: 0.91 mm against 0.91 mm; shuffled 0.92 mm).
   const double run_ate = static_cast<double>(s["accuracy_keyframes"]["ate_rmse_m"]);
-  for (const char* key : {"accuracy_gt_converged", "accuracy_gt_shuffled"}) {
+  for (const char* key :
+       {"accuracy_gt_converged", "accuracy_gt_shuffled", "accuracy_gt_shuffled_detected"}) {
     EXPECT_EQ(static_cast<int>(s[key]["pairs"]), keyframes) << key;
     EXPECT_EQ(static_cast<std::string>(s[key]["align"]), "se3") << key;
     const double ate = static_cast<double>(s[key]["ate_rmse_m"]);

@@ -3,7 +3,8 @@
 // perturbed poses and points. Exact keypoints must give back the truth; white keypoint noise
 // must cost as much shuffled as not; a pattern in the keypoint errors (each keyframe's
 // keypoints moved as if the camera were elsewhere) must cost much more than the same errors
-// shuffled; a keyframe without ground truth stops the check and is named.
+// shuffled; anchored keypoints are reported apart from the others; a keyframe without ground
+// truth stops the check and is named.
 #include "backend/groundtruth_check.h"
 
 #include <cmath>
@@ -30,7 +31,15 @@ const geometry::Pinhole kK{450.0, 450.0, 320.0, 240.0};
 constexpr int kWidth = 640;
 constexpr int kHeight = 480;
 
-enum class KeypointError { kExact, kWhite, kKeyframePattern };
+// kAnchoredExact: every other point's keypoints are exact and marked anchored, the rest have
+// kWhite's noise; kAnchoredExactElsePattern: the rest have kKeyframePattern's errors.
+enum class KeypointError {
+  kExact,
+  kWhite,
+  kKeyframePattern,
+  kAnchoredExact,
+  kAnchoredExactElsePattern
+};
 
 // Keyframes every 0.15 m along x, turning slowly, looking at points 2-4 m ahead.
 std::vector<StampedPose> truth_poses() {
@@ -82,9 +91,17 @@ void build(map::Map& map, const std::vector<StampedPose>& gt, KeypointError erro
       features::Keypoint kp;
       kp.level = static_cast<std::int8_t>(i % kLevels);
       kp.scale = std::pow(kLevelScale, static_cast<float>(kp.level));
-      if (error == KeypointError::kWhite) {  // 0.5 pixels of the keypoint's level
+      const bool anchored = (error == KeypointError::kAnchoredExact ||
+                             error == KeypointError::kAnchoredExactElsePattern) &&
+                            i % 2 == 0;
+      kp.anchored = anchored ? 1 : 0;
+      if (anchored) {
+        // exact
+      } else if (error == KeypointError::kWhite || error == KeypointError::kAnchoredExact) {
+        // 0.5 pixels of the keypoint's level
         uv += 0.5 * kp.scale * Eigen::Vector2d(n01(rng), n01(rng));
-      } else if (error == KeypointError::kKeyframePattern) {
+      } else if (error == KeypointError::kKeyframePattern ||
+                 error == KeypointError::kAnchoredExactElsePattern) {
         // As seen from a camera pattern_offset_m(k) to the side (parallax: 1 / depth).
         uv.x() += kK.fx * pattern_offset_m(k) / pc.z();
       }
@@ -187,6 +204,18 @@ TEST(GroundTruthCheck, ExactKeypointsGiveBackTheTruth) {
   EXPECT_LT(ate_m(r.shuffled, gt), 1e-5);
 }
 
+TEST(GroundTruthCheck, AnchoredKeypointsAreReportedApart) {
+  const std::vector<StampedPose> gt = truth_poses();
+  GroundTruthCheckReport r;
+  ASSERT_NO_FATAL_FAILURE(run(KeypointError::kAnchoredExact, gt, r));
+  ASSERT_TRUE(r.ran) << r.note;
+  EXPECT_GT(r.anchored_observations, r.observations / 3);
+  EXPECT_LT(r.anchored_observations, 2 * r.observations / 3);
+  EXPECT_LT(r.anchored_rms_level_px, 1e-4);
+  EXPECT_GT(r.detected_rms_level_px, 0.38);
+  EXPECT_LT(r.detected_rms_level_px, 0.52);
+}
+
 TEST(GroundTruthCheck, WhiteNoiseCostsAsMuchShuffled) {
   const std::vector<StampedPose> gt = truth_poses();
   GroundTruthCheckReport r;
@@ -223,6 +252,27 @@ TEST(GroundTruthCheck, AKeyframePatternCostsMoreThanItsErrorsShuffled) {
   // ...while the same errors, shuffled, cost far less (measured: 9.7 mm against 2.0 mm;
   // white noise above: 1.09 against 1.05 mm).
   EXPECT_GT(converged, 3.0 * shuffled);
+  EXPECT_TRUE(r.shuffled_detected.empty());  // no anchored keypoint: step 5 does not run
+}
+
+// The pattern only in the keypoints that are not anchored: shuffling those alone removes
+// about as much of it as shuffling all.
+TEST(GroundTruthCheck, ShufflingTheDetectedKeypointsFindsTheirPattern) {
+  const std::vector<StampedPose> gt = truth_poses();
+  GroundTruthCheckReport r;
+  ASSERT_NO_FATAL_FAILURE(run(KeypointError::kAnchoredExactElsePattern, gt, r));
+  ASSERT_TRUE(r.ran) << r.note;
+  ASSERT_EQ(r.shuffled_detected.size(), r.converged.size());
+  EXPECT_GT(r.iterations_shuffled_detected, 0);
+  const double converged = ate_m(r.converged, gt);
+  const double shuffled = ate_m(r.shuffled, gt);
+  const double detected = ate_m(r.shuffled_detected, gt);
+  std::printf(
+      "[ gt-check   ] pattern unless anchored: converged %.3f mm, shuffled %.3f mm, "
+      "detected shuffled %.3f mm\n",
+      1e3 * converged, 1e3 * shuffled, 1e3 * detected);
+  EXPECT_GT(converged, 2.0 * detected);
+  EXPECT_LT(detected, 2.0 * shuffled);
 }
 
 TEST(GroundTruthCheck, AKeyframeWithoutGroundTruthIsNamed) {

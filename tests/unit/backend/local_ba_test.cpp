@@ -182,7 +182,7 @@ TEST(LocalBa, NoisyGraphConvergesToGroundTruthWithMetricDepth) {
 // every other keyframe) weigh more than detections (0.5 px noise) when their sigma is scaled
 // down, and the map lands closer to the truth; at 1 the flag changes nothing.
 TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
-  auto solve = [](double scale, bool mark) {
+  auto solve = [](double scale, bool mark, int min_anchored = 1) {
     map::Map map(small_map());
     const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.05, 0.02, 0.05);
     for (int k = 0; k < kKeyframes; k += 2) {
@@ -200,6 +200,7 @@ TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
     LocalBaOptions o = opts("auto");
     o.depth_sigma_rel = 0.05;  // weak depth edges: the keypoints decide
     o.anchored_sigma_scale = scale;
+    o.anchored_min_observations = min_anchored;
     LocalBundleAdjuster ba(o, map, {1.0F}, true, /*metric_depth=*/true);
     EXPECT_TRUE(ba.spin_once(s.kf.back(), kK).ran);
     return errors(map, s);
@@ -212,6 +213,14 @@ TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
   EXPECT_LT(weighted.rms_point_m, 0.5 * plain.rms_point_m)
       << weighted.rms_point_m << " m against " << plain.rms_point_m << " m";
   EXPECT_LT(weighted.max_position_m, plain.max_position_m);
+  // Every other keyframe is marked: no point has kKeyframes / 2 + 1 anchored keypoints, so
+  // that minimum keeps every sigma; a minimum of 2 (most points have) keeps most of the gain.
+  const Errors too_few = solve(0.25, true, kKeyframes / 2 + 1);
+  EXPECT_EQ(plain.rms_point_m, too_few.rms_point_m);
+  EXPECT_EQ(plain.max_position_m, too_few.max_position_m);
+  const Errors two = solve(0.25, true, 2);
+  EXPECT_LT(two.rms_point_m, 0.6 * plain.rms_point_m)
+      << two.rms_point_m << " m against " << plain.rms_point_m << " m";
 }
 
 // summary.json backend.new_keyframe_*: a new keyframe's first run, measured against the pose
