@@ -18,8 +18,9 @@ bool unlock_memory(std::string* error);
 /// Largest threshold set_mmap_threshold accepts (the allocator's own limit on 64-bit glibc).
 inline constexpr std::size_t kMaxMmapThresholdBytes = std::size_t{32} << 20U;
 
-/// Fixes the allocator's mmap threshold (glibc mallopt(M_MMAP_THRESHOLD)): every block of at
-/// least `bytes` gets a mapping of its own, unmapped when freed. By default glibc raises the
+/// Fixes the allocator's mmap threshold (glibc mallopt(M_MMAP_THRESHOLD)): a block of at
+/// least `bytes` that no free chunk of a heap can serve gets a mapping of its own, unmapped
+/// when freed. By default glibc raises the
 /// threshold each time such a block is freed, so that later large, short-lived blocks (an
 /// optimizer's workspace) are carved from the heaps of the threads that use them, and the
 /// holes they leave keep resident memory creeping up over a long run. Setting it also stops

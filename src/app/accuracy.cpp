@@ -195,10 +195,12 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
   const std::array<const std::vector<StampedPose>*, 3> poses{&report.converged, &report.shuffled,
                                                              &report.shuffled_detected};
   const std::array<AccuracyReport*, 3> scores{&converged, &shuffled, &shuffled_detected};
-  converged.note = shuffled.note = "not written";
-  shuffled_detected.note = "not run: no anchored keypoints, or only anchored ones";
+  converged.note = shuffled.note = shuffled_detected.note = "not written";
   for (std::size_t i = 0; i < kFiles.size(); ++i) {
-    if (poses[i]->empty()) continue;  // step 5 did not run
+    if (poses[i]->empty()) {  // step 5 did not run
+      scores[i]->note = "not run: no anchored keypoints, or only anchored ones";
+      continue;
+    }
     hal::Trajectory t;
     t.poses = *poses[i];
     if (Status s = hal::save_tum_trajectory((d / kFiles[i]).string(), t); !s.is_ok()) {

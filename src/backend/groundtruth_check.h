@@ -26,7 +26,8 @@
 ///     that is off the same way in similar views, a point matched to the wrong corner in
 ///     several keyframes). The gap between `converged` and `shuffled` is what such patterns
 ///     cost. Only keypoints are shuffled: 3D-3D depth edges (RGB-D) keep their depths, and
-///     with `backend.depth_edges: scaled` the depth scales step 3 folds in stay for step 4.
+///     with `backend.depth_edges: scaled` the depth scales step 3 folds in stay for step 4
+///     (and those of steps 3 and 4 for step 5).
 ///  5. When some checked keypoints are anchored (depth.align_keypoints) and some are not,
 ///     step 4 again with only the keypoints that are not anchored trading errors, among
 ///     themselves; anchored keypoints keep their own (`shuffled_detected`). Close to

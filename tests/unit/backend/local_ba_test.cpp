@@ -213,7 +213,7 @@ TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
   EXPECT_LT(weighted.rms_point_m, 0.5 * plain.rms_point_m)
       << weighted.rms_point_m << " m against " << plain.rms_point_m << " m";
   EXPECT_LT(weighted.max_position_m, plain.max_position_m);
-  // Every other keyframe is marked: no point has kKeyframes / 2 + 1 anchored keypoints, so
+  // Every other keyframe is marked (kKeyframes is even): no point has kKeyframes / 2 + 1, so
   // that minimum keeps every sigma; a minimum of 2 (most points have) keeps most of the gain.
   const Errors too_few = solve(0.25, true, kKeyframes / 2 + 1);
   EXPECT_EQ(plain.rms_point_m, too_few.rms_point_m);

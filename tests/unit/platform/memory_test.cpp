@@ -39,7 +39,8 @@ TEST(Memory, MmapThresholdDecidesWhereABlockLives) {
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
   GTEST_SKIP() << "a sanitizer's allocator replaces glibc's: nothing to observe";
 #elif defined(__GLIBC__)
-  constexpr std::size_t kBlock = 200U << 10U;
+  // Large enough that no free chunk of the heap can serve it, which glibc would use first.
+  constexpr std::size_t kBlock = std::size_t{8} << 20U;
   auto own_mapping = [](std::size_t bytes) {
     const std::size_t before = mallinfo2().hblks;
     char* volatile p = static_cast<char*>(std::malloc(bytes));
