@@ -20,13 +20,13 @@ inline constexpr std::size_t kMaxMmapThresholdBytes = std::size_t{32} << 20U;
 
 /// Fixes the allocator's mmap threshold (glibc mallopt(M_MMAP_THRESHOLD)): a block of at
 /// least `bytes` that no free chunk of a heap can serve gets a mapping of its own, unmapped
-/// when freed. By default glibc raises the
-/// threshold each time such a block is freed, so that later large, short-lived blocks (an
-/// optimizer's workspace) are carved from the heaps of the threads that use them, and the
-/// holes they leave keep resident memory creeping up over a long run. Setting it also stops
-/// glibc from raising its trim threshold, so free memory at the top of a heap goes back to
-/// the system. Process-wide; call before the threads start. Returns false (message in `error`) when
-/// `bytes` is 0 or above kMaxMmapThresholdBytes, or the C library has no such setting.
+/// when freed. By default glibc raises the threshold each time such a block is freed, so that
+/// later large, short-lived blocks (an optimizer's workspace) are carved from the heaps of the
+/// threads that use them, and the holes they leave keep resident memory creeping up over a
+/// long run. Setting it also stops glibc from raising its trim threshold, so free memory at
+/// the top of a heap goes back to the system. Process-wide; call before the threads start.
+/// Returns false (message in `error`) when `bytes` is 0 or above kMaxMmapThresholdBytes, or
+/// the C library has no such setting.
 [[nodiscard]] bool set_mmap_threshold(std::size_t bytes, std::string* error);
 
 }  // namespace mer::platform

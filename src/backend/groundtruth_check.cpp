@@ -259,7 +259,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   for (std::size_t level = 0; level < top; ++level) {
     GroundTruthLevelError e;
     e.observations = count[level];
-    e.rms_level_px = in_rms[level] > 0 ? std::sqrt(sum2[level] / (2.0 * in_rms[level])) : 0.0;
+    e.rms_level_px = rms(sum2[level], in_rms[level]);
     rep.levels.push_back(e);
   }
   // Where step 3 starts, for step 4 to start there too.
