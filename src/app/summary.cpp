@@ -216,6 +216,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"depth_edge_mode\": " << json_string(st.backend_depth_edges)
     << ", \"depth_edges\": " << ba.depth_edges << ", \"aborted\": " << ba.aborted
     << ", \"timed_out\": " << ba.timed_out << ", \"overruns\": " << ba.overruns
+    << ", \"resolves\": " << ba.resolves << ", \"resolves_skipped\": " << ba.resolves_skipped
     << ", \"mean_ms\": " << num(ba.runs ? ba.total_ms / static_cast<double>(ba.runs) : 0.0)
     << ", \"max_ms\": " << num(ba.max_ms) << ", \"stale_writes\": " << ba.stale_writes
     << ", \"lock_wait_mean_ms\": "

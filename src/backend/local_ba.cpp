@@ -7,6 +7,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <span>
 #include <unordered_map>
 #include <utility>
 
@@ -274,7 +275,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   const bool measure_step =
       first_run && last_kf_ != map::kNoId && map_.keyframe_t_ns(last_kf_) == last_kf_t_ns_ &&
       map_.keyframe_pose(kf, T_w_new) && map_.keyframe_pose(last_kf_, T_w_last);
-  LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, t0, lock);
+  LocalBaReport rep = optimize(window, K, opts_.max_iterations, !deterministic_, t0, lock,
+                               /*cull_points=*/true, opts_.resolve_without_outliers);
   rep.lock_wait_ms += wait_ms;
   if (!rep.ran) return rep;
   if (first_run) {
@@ -301,6 +303,8 @@ LocalBaReport LocalBundleAdjuster::spin_once(map::KeyframeId kf, const geometry:
   totals_.aborted += rep.aborted ? 1U : 0U;
   totals_.timed_out += rep.timed_out ? 1U : 0U;
   totals_.overruns += rep.ms > opts_.max_time_ms ? 1U : 0U;
+  totals_.resolves += rep.resolved ? 1U : 0U;
+  totals_.resolves_skipped += rep.resolve_skipped ? 1U : 0U;
   totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points);
   totals_.outliers += static_cast<std::uint64_t>(rep.outliers);
   totals_.depth_edges += static_cast<std::uint64_t>(rep.depth_edges);
@@ -321,7 +325,7 @@ LocalBaReport LocalBundleAdjuster::optimize_full(const geometry::Pinhole& K, int
   for (map::KeyframeId id = 0; id < n; ++id) {
     if (map_.keyframe_is_live(id)) window.push_back(id);
   }
-  return optimize(window, K, max_iterations, false, t0, lock, cull_points);
+  return optimize(window, K, max_iterations, false, t0, lock, cull_points, /*resolve=*/true);
 }
 
 std::chrono::steady_clock::time_point LocalBundleAdjuster::begin_run() {
@@ -336,7 +340,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
                                             const geometry::Pinhole& K, int max_iterations,
                                             bool budgeted, std::chrono::steady_clock::time_point t0,
                                             std::unique_lock<platform::PiMutex>& lock,
-                                            bool cull_points) {
+                                            bool cull_points, bool resolve) {
   LocalBaReport rep;
   Workspace& ws = *ws_;
   const auto budget = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
@@ -583,10 +587,10 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   const auto t_tail = std::chrono::steady_clock::now();  // the work after the solves, timed
   std::chrono::steady_clock::duration second_solve{};
 
-  // 4. Outliers out, solve again. Not after a pre-empted solve: unconverged residuals would
-  //    make inliers look like outliers; the progress made is written back as it is. All
-  //    blocks are checked before any is removed, so that an abort in between leaves no
-  //    partial classification.
+  // 4. Outliers out, solve again (`resolve`; without it they are only classified, for the
+  //    culling). Not after a pre-empted solve: unconverged residuals would make inliers look
+  //    like outliers; the progress made is written back as it is. All blocks are checked
+  //    before any is removed, so that an abort in between leaves no partial classification.
   auto& point_obs = ws.point_obs;  // inliers, outliers
   auto& outliers = ws.outliers;
   // (Past the deadline a started classification is finished, as the deadline is only
@@ -620,7 +624,10 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   }
   rep.outliers = static_cast<int>(outliers.size());
   until_poll = kRemovePollEvery;
-  for (const ceres::ResidualBlockId id : outliers) {
+  // Without a second solve they stay in the problem: removing them would only cost time.
+  const std::span<const ceres::ResidualBlockId> removed(outliers.data(),
+                                                        resolve ? outliers.size() : 0);
+  for (const ceres::ResidualBlockId id : removed) {
     if (--until_poll <= 0) {
       until_poll = kRemovePollEvery;
       (void)stop.check(LocalBaPoll::kClassify);
@@ -628,11 +635,25 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     }
     problem.RemoveResidualBlock(id);
   }
-  if (rep.outliers > 0 && problem.NumResidualBlocks() > 0 && !stop.check(LocalBaPoll::kSolve)) {
-    if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
-    const auto t_solve = std::chrono::steady_clock::now();
-    solve();
-    second_solve = std::chrono::steady_clock::now() - t_solve;
+  if (resolve && rep.outliers > 0 && problem.NumResidualBlocks() > 0 &&
+      !stop.check(LocalBaPoll::kSolve)) {
+    // Most of a second solve is Ceres' set-up and first evaluation, which its time limit
+    // does not cut short: one is not started in less time than one recently took (the
+    // largest recent figure, decaying); the outliers are removed all the same.
+    if (budgeted && remaining_s() * kMsPerS < resolve_ms_) {
+      rep.resolve_skipped = true;
+      resolve_ms_ *= kTailReserveDecay;
+    } else {
+      if (budgeted) sopts.max_solver_time_in_seconds = remaining_s();
+      const auto t_solve = std::chrono::steady_clock::now();
+      solve();
+      second_solve = std::chrono::steady_clock::now() - t_solve;
+      rep.resolved = true;
+      if (budgeted) {
+        resolve_ms_ = std::max(std::chrono::duration<double, std::milli>(second_solve).count(),
+                               kTailReserveDecay * resolve_ms_);
+      }
+    }
   }
   rep.final_cost = stop.cost_known ? stop.cost : 0.0;
 

@@ -72,10 +72,11 @@ struct LocalBaOptions {
   double anchored_sigma_scale = 1.0;  ///< sigma of an anchored keypoint, x its level's sigma
   int anchored_min_observations = 3;  ///< anchored keypoints a point needs for that sigma
   double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
-  int min_inlier_observations = 2;    ///< points with fewer consistent observations are culled
-  int full_max_iterations = 100;      ///< iterations of a full-graph optimization (--final-ba)
-  std::string depth_edges = "auto";   ///< 3D-3D edges: auto (metric in rgbd mode, else off),
-                                      ///< off, metric (depth as is), scaled (per-keyframe scale)
+  bool resolve_without_outliers = true;  ///< local runs: solve again with the outliers removed
+  int min_inlier_observations = 2;       ///< points with fewer consistent observations are culled
+  int full_max_iterations = 100;         ///< iterations of a full-graph optimization (--final-ba)
+  std::string depth_edges = "auto";      ///< 3D-3D edges: auto (metric in rgbd mode, else off),
+                                         ///< off, metric (depth as is), scaled (per-keyframe scale)
   double depth_sigma_rel = 0.01;      ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
   double depth_outlier_chi2 = 3.841;  ///< squared depth error / sigma^2 above this: outlier
 
@@ -97,6 +98,12 @@ struct LocalBaOptions {
             options::Range<double>{0.1, 100.0});
     v.field("outlier_chi2", outlier_chi2, "squared error / sigma^2 above this is an outlier",
             options::Range<double>{0.1, 1000.0});
+    v.field("resolve_without_outliers", resolve_without_outliers,
+            "local runs: after the first solve, remove the observations beyond outlier_chi2 and "
+            "solve again (off: they are counted and their points culled, the Huber kernel "
+            "having weighed them down in the one solve; full-graph optimizations always solve "
+            "again). Outside lockstep a second solve is not started with less of max_time_ms "
+            "left than one recently took (backend.resolves_skipped in summary.json)");
     v.field("anchored_sigma_scale", anchored_sigma_scale,
             "sigma of a keypoint that measures its point's anchor (depth.align_keypoints: the "
             "anchor's detection or aligned to it), as a multiple of its pyramid level's sigma; "
@@ -147,6 +154,9 @@ struct LocalBaReport {
   bool aborted = false;          ///< stopped by request_abort: the progress made (the last
                                  ///< completed iteration) is kept, outliers are not classified
   bool timed_out = false;        ///< stopped by the wall-time budget (the progress made is kept)
+  bool resolved = false;         ///< a second solve ran, without the outliers
+  bool resolve_skipped = false;  ///< it would have, but the budget left was below what one
+                                 ///< recently took (budgeted runs)
   int stale_writes = 0;          ///< results not written back: the keyframe / point changed
                                  ///< while the solver ran without the writer lock
   double lock_wait_ms = 0.0;     ///< time spent waiting for the map's writer lock (in `ms`)
@@ -158,9 +168,11 @@ struct LocalBaTotals {
   std::uint64_t culled_points = 0;
   std::uint64_t outliers = 0;
   std::uint64_t depth_edges = 0;
-  std::uint64_t aborted = 0;    ///< runs pre-empted by request_abort
-  std::uint64_t timed_out = 0;  ///< runs stopped by the wall-time budget
-  std::uint64_t overruns = 0;   ///< runs that took longer than max_time_ms
+  std::uint64_t aborted = 0;           ///< runs pre-empted by request_abort
+  std::uint64_t timed_out = 0;         ///< runs stopped by the wall-time budget
+  std::uint64_t overruns = 0;          ///< runs that took longer than max_time_ms
+  std::uint64_t resolves = 0;          ///< runs with a second solve (LocalBaReport::resolved)
+  std::uint64_t resolves_skipped = 0;  ///< runs that skipped it for the budget
   double total_ms = 0.0;
   double max_ms = 0.0;
   std::uint64_t stale_writes = 0;  ///< results dropped at write-back (LocalBaReport)
@@ -246,11 +258,11 @@ class LocalBundleAdjuster {
   /// previous run built; returns the run's start time.
   std::chrono::steady_clock::time_point begin_run();
   /// `t0`: from begin_run. `lock` holds the writer lock on entry; released while Ceres solves,
-  /// held on return.
+  /// held on return. `resolve`: solve again once the outliers are removed.
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
                          int max_iterations, bool budgeted,
                          std::chrono::steady_clock::time_point t0,
-                         std::unique_lock<platform::PiMutex>& lock, bool cull_points = true);
+                         std::unique_lock<platform::PiMutex>& lock, bool cull_points, bool resolve);
 
   LocalBaOptions opts_;
   map::Map& map_;
@@ -265,6 +277,7 @@ class LocalBundleAdjuster {
   std::function<void(LocalBaPoll)> observer_;
   std::unique_ptr<Workspace> ws_;
   double tail_reserve_ms_ = 0.0;  // budgeted runs: time after the solves (see optimize)
+  double resolve_ms_ = 0.0;       // budgeted runs: what a second solve takes (see optimize)
 };
 
 }  // namespace mer::backend

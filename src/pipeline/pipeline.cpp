@@ -315,10 +315,11 @@ void Pipeline::optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole&
       lat_local_ba_->record(seq, t_ba, platform::monotonic_now_ns() - t_ba);
       MER_LOG_DEBUG(
           "local BA at frame %llu: %d + %d fixed keyframes, %d points, %d observations, "
-          "%d outliers, %d points culled, %d iterations, cost %.4g -> %.4g, %.1f ms%s",
+          "%d outliers, %d points culled, %d iterations, cost %.4g -> %.4g, %.1f ms%s%s",
           static_cast<unsigned long long>(seq), ba.keyframes, ba.fixed_keyframes, ba.points,
           ba.observations, ba.outliers, ba.culled_points, ba.iterations, ba.initial_cost,
-          ba.final_cost, ba.ms, ba.aborted ? ", aborted" : (ba.timed_out ? ", timed out" : ""));
+          ba.final_cost, ba.ms, ba.aborted ? ", aborted" : (ba.timed_out ? ", timed out" : ""),
+          ba.resolved ? ", solved again" : (ba.resolve_skipped ? ", second solve skipped" : ""));
     }
   }
   (void)culler_->spin_once(cull_kf);

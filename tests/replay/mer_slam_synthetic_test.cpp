@@ -331,6 +331,11 @@ TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
     EXPECT_LE(static_cast<double>(l["p50"]), static_cast<double>(l["p99"])) << stage;
     EXPECT_TRUE(s["budget_overruns"][stage].isInt()) << stage;
   }
+  // The back end's second solves: counted, and at most one per run.
+  const cv::FileNode ba = s["backend"];
+  ASSERT_TRUE(ba["resolves"].isInt() && ba["resolves_skipped"].isInt());
+  EXPECT_LE(static_cast<int>(ba["resolves"]) + static_cast<int>(ba["resolves_skipped"]),
+            static_cast<int>(ba["local_ba_runs"]));
 }
 
 // SIGINT mid-run: exit 0, summary says so, and every processed frame is in the files.

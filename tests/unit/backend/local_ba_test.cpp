@@ -4,6 +4,7 @@
 // must be recovered, and a gross depth outlier must be removed rather than bend the map.
 #include "backend/local_ba.h"
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -305,13 +306,65 @@ TEST(LocalBa, GrossDepthOutlierIsRemoved) {
   map::Map map(small_map());
   const Scene s =
       build(map, std::vector<double>(kKeyframes, 1.0), 0.02, 0.01, 0.02, /*outlier kp=*/5);
-  LocalBundleAdjuster ba(opts("metric"), map, {1.0F}, true, true);
+  LocalBaOptions o = opts("metric");
+  o.resolve_without_outliers = true;
+  LocalBundleAdjuster ba(o, map, {1.0F}, true, true);
   const LocalBaReport rep = ba.spin_once(s.kf.back(), kK);
   ASSERT_TRUE(rep.ran);
   EXPECT_GE(rep.outliers, 1);
   const Errors after = errors(map, s);
   EXPECT_LT(after.max_position_m, 0.005);
   EXPECT_LT(after.rms_point_m, 0.01);
+}
+
+// resolve_without_outliers off: the outliers are still found and counted, but the run ends
+// with its one solve, the same as a run in which nothing is an outlier; on (the default), a
+// second solve runs (more iterations) and moves the map.
+TEST(LocalBa, SecondSolveWithoutTheOutliersIsAnOption) {
+  struct Run {
+    LocalBaReport rep;
+    std::vector<SE3d> poses;
+  };
+  const auto run = [](bool resolve, double outlier_chi2, bool deterministic = true) {
+    map::Map map(small_map());
+    const Scene s =
+        build(map, std::vector<double>(kKeyframes, 1.0), 0.02, 0.01, 0.02, /*outlier kp=*/5);
+    LocalBaOptions o = opts("metric");
+    o.resolve_without_outliers = resolve;
+    o.outlier_chi2 = outlier_chi2;
+    if (outlier_chi2 > LocalBaOptions{}.outlier_chi2) o.depth_outlier_chi2 = outlier_chi2;
+    o.max_time_ms = 1e5;  // budgeted runs: a budget that does not bind
+    LocalBundleAdjuster ba(o, map, {1.0F}, deterministic, true);
+    Run r;
+    r.rep = ba.spin_once(s.kf.back(), kK);
+    for (const map::KeyframeId kf : s.kf) {
+      SE3d T;
+      EXPECT_TRUE(map.keyframe_pose(kf, T));
+      r.poses.push_back(T);
+    }
+    return r;
+  };
+  const Run one = run(false, LocalBaOptions{}.outlier_chi2);
+  const Run none = run(true, 1e9);  // nothing is an outlier: one solve
+  const Run two = run(true, LocalBaOptions{}.outlier_chi2);
+  ASSERT_TRUE(one.rep.ran && none.rep.ran && two.rep.ran);
+  EXPECT_EQ(none.rep.outliers, 0);
+  EXPECT_GE(one.rep.outliers, 1);
+  EXPECT_EQ(one.rep.outliers, two.rep.outliers);
+  EXPECT_EQ(one.rep.iterations, none.rep.iterations);
+  EXPECT_GT(two.rep.iterations, one.rep.iterations);
+  EXPECT_FALSE(one.rep.resolved || none.rep.resolved);
+  EXPECT_TRUE(two.rep.resolved);
+  // With the wall-time budget applied (outside lockstep) and ample time, it solves again too.
+  const Run budgeted = run(true, LocalBaOptions{}.outlier_chi2, /*deterministic=*/false);
+  EXPECT_TRUE(budgeted.rep.resolved);
+  EXPECT_FALSE(one.rep.resolve_skipped || two.rep.resolve_skipped || budgeted.rep.resolve_skipped);
+  double moved = 0.0;
+  for (std::size_t k = 0; k < one.poses.size(); ++k) {
+    EXPECT_TRUE(one.poses[k].isApprox(none.poses[k], 0.0)) << "keyframe " << k;
+    moved = std::max(moved, (two.poses[k].translation() - one.poses[k].translation()).norm());
+  }
+  EXPECT_GT(moved, 0.0);
 }
 
 // A window big enough that a solve takes many evaluations: 8 keyframes, 3000 points, noisy.
