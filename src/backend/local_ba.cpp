@@ -7,7 +7,6 @@
 #include <memory>
 #include <mutex>
 #include <optional>
-#include <span>
 #include <unordered_map>
 #include <utility>
 
@@ -625,15 +624,13 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   rep.outliers = static_cast<int>(outliers.size());
   until_poll = kRemovePollEvery;
   // Without a second solve they stay in the problem: removing them would only cost time.
-  const std::span<const ceres::ResidualBlockId> removed(outliers.data(),
-                                                        resolve ? outliers.size() : 0);
-  for (const ceres::ResidualBlockId id : removed) {
+  for (std::size_t i = 0; resolve && i < outliers.size(); ++i) {
     if (--until_poll <= 0) {
       until_poll = kRemovePollEvery;
       (void)stop.check(LocalBaPoll::kClassify);
       if (stop.aborted) break;
     }
-    problem.RemoveResidualBlock(id);
+    problem.RemoveResidualBlock(outliers[i]);
   }
   if (resolve && rep.outliers > 0 && problem.NumResidualBlocks() > 0 &&
       !stop.check(LocalBaPoll::kSolve)) {
