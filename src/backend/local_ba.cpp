@@ -177,6 +177,9 @@ struct Observation {
   map::PointId p;
   ceres::ResidualBlockId id;
   bool depth = false;  // a 3D-3D edge (else 3D-2D)
+  // The keypoint's sigma over its level's (anchored_sigma_scale, or 1): the outlier gate
+  // tests the error against the level's sigma, whatever weight the keypoint has.
+  double sigma_scale = 1.0;
 };
 
 }  // namespace
@@ -186,7 +189,8 @@ struct Observation {
 /// problem, cost functions and containers are released at the start of the next run rather
 /// than before a run returns, which keeps their destruction out of the abort latency.
 struct LocalBundleAdjuster::Workspace {
-  explicit Workspace(double huber_width) : huber(huber_width) {}
+  Workspace(double huber_width, double anchored_sigma_scale)
+      : huber(huber_width), huber_anchored(huber_width / anchored_sigma_scale) {}
 
   /// Releases the previous run's problem and cost functions and empties the containers
   /// (their capacity is kept). Before any other member is touched: the problem refers to them.
@@ -220,6 +224,9 @@ struct LocalBundleAdjuster::Workspace {
   CostArena<DepthCost> depth_costs;
   RotationManifold quat_manifold;
   ceres::HuberLoss huber;
+  // For a keypoint weighted by anchored_sigma_scale: its residual is divided by the scaled
+  // sigma, so a kernel this much narrower bends at the same error in pixels as `huber`.
+  ceres::HuberLoss huber_anchored;
   std::optional<ceres::Problem> problem;
   std::shared_ptr<ceres::ParameterBlockOrdering> ordering =
       std::make_shared<ceres::ParameterBlockOrdering>();
@@ -240,7 +247,7 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
       deterministic_(deterministic),
       depth_mode_(opts.depth_edges == "auto" ? (metric_depth ? "metric" : "off")
                                              : opts.depth_edges),
-      ws_(std::make_unique<Workspace>(opts.huber_sigmas)) {
+      ws_(std::make_unique<Workspace>(opts.huber_sigmas, opts.anchored_sigma_scale)) {
   // The window's poses and points: reserved for the configured window sizes up front.
   const auto window = static_cast<std::size_t>(std::max(0, opts_.window_keyframes));
   const auto fixed = static_cast<std::size_t>(std::max(0, opts_.max_fixed_keyframes));
@@ -464,9 +471,10 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       const auto kps = map_.keyframe_keypoints(obs[o].first);
       if (obs[o].second >= kps.size()) continue;
       const features::Keypoint& kp = kps[obs[o].second];
+      const double scale = kp.anchored != 0 ? anchored_scale : 1.0;
       const double inv_sigma =
-          1.0 / (std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level))) *
-                 (kp.anchored != 0 ? anchored_scale : 1.0));
+          1.0 /
+          (std::sqrt(static_cast<double>(features::level_sigma2(level_sigma2_, kp.level))) * scale);
       PoseBlock& b = poses[it->second].second;
       // A point behind (or on) a camera that observes it cannot be evaluated: leave that
       // observation out (a solve whose first evaluation fails does nothing at all).
@@ -483,9 +491,9 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       }
       ReprojectionCost* cost = reprojection_costs.emplace(kp.x, kp.y, inv_sigma, K, &abort_);
       if (cost == nullptr) break;  // (cannot happen: max_blocks bounds the blocks)
-      const ceres::ResidualBlockId rid =
-          problem.AddResidualBlock(cost, &huber, b.q.data(), b.t.data(), X.data());
-      residuals.push_back({obs[o].first, p, rid, false});
+      const ceres::ResidualBlockId rid = problem.AddResidualBlock(
+          cost, scale != 1.0 ? &ws.huber_anchored : &huber, b.q.data(), b.t.data(), X.data());
+      residuals.push_back({obs[o].first, p, rid, false, scale});
       if (!use_depth) continue;
       const float d = map_.keyframe_depth(obs[o].first, obs[o].second);
       const float conf = map_.keyframe_depth_confidence(obs[o].first, obs[o].second);
@@ -610,7 +618,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
       (void)stop.check(LocalBaPoll::kClassify);
       break;
     }
-    if (!ok || 2.0 * cost > chi2) {
+    if (!ok || 2.0 * cost * o.sigma_scale * o.sigma_scale > chi2) {
       outliers.push_back(o.id);
       if (!o.depth) ++point_obs[o.p].second;
     } else if (!o.depth) {

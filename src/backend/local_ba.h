@@ -69,7 +69,7 @@ struct LocalBaOptions {
   int max_iterations = 10;            ///< Levenberg-Marquardt iterations per solve
   double max_time_ms = 50.0;          ///< wall-time budget of one run (all solves), ms
   double huber_sigmas = 2.45;         ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
-  double anchored_sigma_scale = 1.0;  ///< sigma of an anchored keypoint, x its level's sigma
+  double anchored_sigma_scale = 0.5;  ///< sigma of an anchored keypoint, x its level's sigma
   int anchored_min_observations = 3;  ///< anchored keypoints a point needs for that sigma
   double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
   bool resolve_without_outliers = true;  ///< local runs: solve again with the outliers removed
@@ -108,7 +108,8 @@ struct LocalBaOptions {
             "sigma of a keypoint that measures its point's anchor (depth.align_keypoints: the "
             "anchor's detection or aligned to it), as a multiple of its pyramid level's sigma; "
             "below 1 such keypoints weigh more than independent detections, whose errors "
-            "across views are correlated (kernel and outlier gate follow the sigma)",
+            "across views are correlated; the Huber kernel and the outlier gate stay at the "
+            "level's sigma in pixels (1: no weighting)",
             options::Range<double>{0.05, 10.0});
     v.field("anchored_min_observations", anchored_min_observations,
             "anchored keypoints a point needs among its observations before "

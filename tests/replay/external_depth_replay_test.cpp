@@ -90,8 +90,8 @@ TEST(MerSlamExternalDepth, MonocularWithUnknownScaleMapsIsAccurate) {
   // Most keypoints of every keyframe read a depth (the rest: depth edges).
   EXPECT_GT(static_cast<int>(s["map"]["depth_valid"]), 500 * jobs);
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 98.0);
-  // Measured 0.21 % of the 3.8 m path (7.9 mm RMSE) after Sim(3) alignment; the
-  // triangulation backend on the same 300 frames gives 0.25 %. That the maps are used is
+  // Measured 0.27 % of the 3.8 m path (10.2 mm RMSE) after Sim(3) alignment; the
+  // triangulation backend on the same 300 frames gives 0.18 %. That the maps are used is
   // checked by depth_valid above (triangulation gives far fewer depths per keyframe); the
   // bound is the 1 % target.
   const double ate_pct = static_cast<double>(s["accuracy"]["ate_pct_of_path"]);

@@ -224,6 +224,37 @@ TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
       << two.rms_point_m << " m against " << plain.rms_point_m << " m";
 }
 
+// A weighted keypoint keeps its level's outlier gate in pixels: every keypoint marked, with
+// 0.5 px noise, one of them 1.8 px off and one 5 px off. At the level's sigma (1 px, gate
+// sqrt(5.991) = 2.45 px) only the 5 px one is an outlier, weighted or not; a gate that
+// followed the scaled sigma (1.22 px) would take the 1.8 px one and about 5 % of the noise.
+TEST(LocalBa, AnchoredKeypointsKeepTheirLevelsOutlierGate) {
+  auto solve = [](double scale) {
+    map::Map map(small_map());
+    const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.02, 0.01, 0.02);
+    for (int k = 0; k < kKeyframes; ++k) {
+      const auto kf = s.kf[static_cast<std::size_t>(k)];
+      for (std::size_t j = 0; j < s.kp_point[static_cast<std::size_t>(k)].size(); ++j) {
+        EXPECT_TRUE(map.set_keypoint_anchored(kf, static_cast<std::uint32_t>(j), true));
+      }
+    }
+    const auto kf = s.kf[2];
+    for (const auto& [kp, shift] : {std::pair<std::uint32_t, float>{10, 1.8F}, {20, 5.0F}}) {
+      const features::Keypoint& k = map.keyframe_keypoints(kf)[kp];
+      EXPECT_TRUE(map.set_keypoint_position(kf, kp, k.x + shift, k.y));
+    }
+    LocalBaOptions o = opts("off");
+    o.anchored_sigma_scale = scale;
+    LocalBundleAdjuster ba(o, map, {1.0F}, true, /*metric_depth=*/true);
+    return ba.spin_once(s.kf.back(), kK);
+  };
+  const LocalBaReport plain = solve(1.0);
+  const LocalBaReport weighted = solve(0.5);
+  ASSERT_TRUE(plain.ran && weighted.ran);
+  EXPECT_EQ(plain.outliers, 1);
+  EXPECT_EQ(weighted.outliers, 1);
+}
+
 // summary.json backend.new_keyframe_*: a new keyframe's first run, measured against the pose
 // it was inserted with. The newest keyframe is put 30 % of its step back towards the one
 // before; the run (metric depth pins the scale) puts it back: step ratio 1 / 0.7, and a move
