@@ -253,6 +253,10 @@ TEST(LocalBa, AnchoredKeypointsKeepTheirLevelsOutlierGate) {
   ASSERT_TRUE(plain.ran && weighted.ran);
   EXPECT_EQ(plain.outliers, 1);
   EXPECT_EQ(weighted.outliers, 1);
+  // The weight is in effect: a point seen at least 3 times (most are) costs 4x, inside the
+  // kernel and beyond it alike.
+  EXPECT_GT(weighted.initial_cost, 3.0 * plain.initial_cost);
+  EXPECT_LT(weighted.initial_cost, 4.001 * plain.initial_cost);
 }
 
 // summary.json backend.new_keyframe_*: a new keyframe's first run, measured against the pose
