@@ -32,6 +32,8 @@ constexpr std::size_t kMaxLoopEdges = 4096;
 constexpr double kMaxLoopScale = 2.0;
 /// Refits of a loop similarity on its inliers before the inlier set is taken as settled.
 constexpr int kRefitRounds = 3;
+/// A point this close to a camera's plane (map units) stops a refinement step.
+constexpr double kMinRefineDepth = 1e-6;
 
 Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eigen::Vector3d>& x_old,
                const std::vector<std::size_t>& idx, bool metric) {
@@ -93,6 +95,38 @@ struct Sim3EdgeCost {
   Eigen::Quaterniond q_inv;
   Eigen::Vector3d t_inv;
   double log_s_inv = 0.0;
+};
+
+/// Reprojection error of one loop match under S_cand_new = (q, t, exp(log_s)): the new
+/// keyframe's point moved into the old view that observed its match, and the old point moved
+/// into the new keyframe, each against its keypoint in sigmas (4 residuals). The points stay
+/// where the map has them: only the similarity is refined.
+struct Sim3ReprojectionCost {
+  Eigen::Vector3d x_new;  // the new keyframe's point, new camera frame
+  Eigen::Vector3d x_old;  // the old point, candidate camera frame
+  Eigen::Quaterniond q_view_cand;
+  Eigen::Vector3d t_view_cand;
+  Eigen::Vector2d kp_old;  // its keypoint in the old view
+  Eigen::Vector2d kp_new;
+  double inv_sigma_old = 1.0;
+  double inv_sigma_new = 1.0;
+  geometry::Pinhole K;
+
+  template <class T>
+  bool operator()(const T* q, const T* t, const T* log_s, T* res) const {
+    const Eigen::Map<const Eigen::Quaternion<T>> Q(q);
+    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> Tr(t);
+    const T s = exp(log_s[0]);
+    const Eigen::Matrix<T, 3, 1> a = Q * x_new.cast<T>() * s + Tr;  // candidate frame
+    const Eigen::Matrix<T, 3, 1> av = q_view_cand.cast<T>() * a + t_view_cand.cast<T>();
+    const Eigen::Matrix<T, 3, 1> b = Q.conjugate() * (x_old.cast<T>() - Tr) / s;  // new frame
+    if (!(av.z() > T(kMinRefineDepth)) || !(b.z() > T(kMinRefineDepth))) return false;
+    res[0] = (T(K.fx) * av.x() / av.z() + T(K.cx) - T(kp_old.x())) * T(inv_sigma_old);
+    res[1] = (T(K.fy) * av.y() / av.z() + T(K.cy) - T(kp_old.y())) * T(inv_sigma_old);
+    res[2] = (T(K.fx) * b.x() / b.z() + T(K.cx) - T(kp_new.x())) * T(inv_sigma_new);
+    res[3] = (T(K.fy) * b.y() / b.z() + T(K.cy) - T(kp_new.y())) * T(inv_sigma_new);
+    return true;
+  }
 };
 
 struct GraphNode {
@@ -309,6 +343,12 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       MER_LOG_DEBUG("loop: guided search: %d more matches, %d of %d agree (scale %.3f)", added,
                     inliers, m, S_cand_new.s);
     }
+    if (inliers >= opts_.min_inliers) {
+      const double s_fit = S_cand_new.s;
+      inliers = refine_sim3(kf, K, inliers, S_cand_new);
+      MER_LOG_DEBUG("loop: refined on reprojection: %d agree (scale %.4f, 3D fit %.4f)", inliers,
+                    S_cand_new.s, s_fit);
+    }
     if (inliers < opts_.min_inliers || inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
     // travelled since the old one (perceptual aliasing: a similar place far away).
@@ -346,6 +386,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.inliers = best.inliers;
       rep.loop_keyframe = cand;
       rep.loop_seq = map_.keyframe_seq(cand);
+      rep.S_cand_new = best.sim;
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
       rep.closed = true;
     }
@@ -566,6 +607,59 @@ int LoopCloser::refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, Sim3d
     if (same) break;
   }
   return best;  // inlier_ describes S_cand_new (a refit that lost inliers was not taken)
+}
+
+int LoopCloser::refine_sim3(map::KeyframeId kf, const geometry::Pinhole& K, int inliers,
+                            Sim3d& S_cand_new) {
+  if (opts_.refine_iterations <= 0 || inliers < 3) return inliers;
+  const auto kps_new = map_.keyframe_keypoints(kf);
+  Eigen::Quaterniond q(S_cand_new.R);
+  std::array<double, 4> qv{q.x(), q.y(), q.z(), q.w()};
+  std::array<double, 3> tv{S_cand_new.t.x(), S_cand_new.t.y(), S_cand_new.t.z()};
+  double log_s = std::log(S_cand_new.s);
+  ceres::Problem problem;
+  ceres::HuberLoss* huber = new ceres::HuberLoss(std::sqrt(opts_.inlier_chi2));  // owned
+  for (std::size_t i = 0; i < matches_.size(); ++i) {
+    if (!inlier_[i]) continue;
+    const Match& m = matches_[i];
+    const OldView& view = old_views_[m.old_view];
+    const features::Keypoint& ko = map_.keyframe_keypoints(view.kf)[m.kp_old];
+    const features::Keypoint& kn = kps_new[m.kp_new];
+    auto* c = new Sim3ReprojectionCost;
+    c->x_new = x_new_[i];
+    c->x_old = x_old_[i];
+    c->q_view_cand = Eigen::Quaterniond(view.T_view_cand.linear());
+    c->t_view_cand = view.T_view_cand.translation();
+    c->kp_old = {ko.x, ko.y};
+    c->kp_new = {kn.x, kn.y};
+    c->inv_sigma_old = 1.0 / std::sqrt(static_cast<double>(sigma2(ko)));
+    c->inv_sigma_new = 1.0 / std::sqrt(static_cast<double>(sigma2(kn)));
+    c->K = K;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<Sim3ReprojectionCost, 4, 4, 3, 1>(c),
+                             huber, qv.data(), tv.data(), &log_s);
+  }
+  if (problem.NumResidualBlocks() < 3) return inliers;
+  problem.SetManifold(qv.data(), new ceres::EigenQuaternionManifold);
+  if (metric_) problem.SetParameterBlockConstant(&log_s);
+  ceres::Solver::Options sopts;
+  sopts.linear_solver_type = ceres::DENSE_QR;
+  sopts.max_num_iterations = opts_.refine_iterations;
+  sopts.num_threads = 1;
+  sopts.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(sopts, &problem, &summary);
+  if (!summary.IsSolutionUsable()) return inliers;
+  Sim3d S;
+  S.R = Eigen::Quaterniond(qv[3], qv[0], qv[1], qv[2]).normalized().toRotationMatrix();
+  S.t = {tv[0], tv[1], tv[2]};
+  S.s = std::exp(log_s);
+  if (!plausible_sim3(S)) return inliers;
+  std::vector<std::uint8_t> mask(matches_.size(), 0);
+  const int c = count_sim3_inliers(kf, S, K, &mask);
+  if (c < inliers) return inliers;
+  S_cand_new = S;
+  inlier_.swap(mask);
+  return c;
 }
 
 int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,

@@ -16,9 +16,11 @@
 ///     covisible neighbours; RANSAC over 3-point Umeyama fits finds the similarity S_cand_new
 ///     (scale fixed to 1 when the map is metric, RGB-D) whose transfer reprojects each match
 ///     onto its keypoint in both keyframes (chi-square gate at the keypoint's pyramid sigma).
-///     `min_inliers` must agree; a loop implying more than `max_drift_fraction` of the path
-///     since the candidate is refused (a similar place elsewhere), and `consistent_checks`
-///     keyframes in a row must find the same place.
+///     A similarity with `min_inliers` is refined on the reprojection errors of its inliers
+///     in both keyframes (`refine_iterations`; the points' depth, which the 3D fit weighs,
+///     is their least certain part). `min_inliers` must agree; a loop implying more than
+///     `max_drift_fraction` of the path since the candidate is refused (a similar place
+///     elsewhere), and `consistent_checks` keyframes in a row must find the same place.
 ///  3. Correction: the new keyframe and its recent covisible neighbours are moved rigidly
 ///     onto the loop; then a Sim(3) pose graph over every keyframe (Ceres; edges: consecutive
 ///     keyframes and covisibility pairs with their relative similarity before the correction,
@@ -69,6 +71,7 @@ struct LoopOptions {
   int guided_min_inliers = 10;       ///< a RANSAC similarity this well supported is used to
                                      ///< project the old points and find more matches (0: off)
   int ransac_iterations = 300;       ///< 3-point samples
+  int refine_iterations = 10;        ///< reprojection refinement of the similarity (0: off)
   double inlier_chi2 = 5.991;        ///< squared transfer error / sigma^2 (2 dof, 95 %)
   int min_edge_weight = 15;          ///< shared points a covisibility pose-graph edge needs
   int pose_graph_iterations = 20;    ///< Levenberg-Marquardt iterations of the pose graph
@@ -110,6 +113,12 @@ struct LoopOptions {
             options::Range<int>{0, 100000});
     v.field("ransac_iterations", ransac_iterations, "3-point RANSAC samples",
             options::Range<int>{1, 1000000});
+    v.field("refine_iterations", refine_iterations,
+            "Levenberg-Marquardt iterations refining a supported similarity on its inliers' "
+            "reprojection errors in both keyframes (robust, keypoint sigmas) instead of their "
+            "3D positions, whose depth errors the 3D fit weighs most; the inliers are counted "
+            "again and the refinement kept when at least as many agree (0: off)",
+            options::Range<int>{0, 1000});
     v.field("inlier_chi2", inlier_chi2,
             "squared transfer error / keypoint sigma^2 of an inlier, in both keyframes",
             options::Range<double>{0.1, 1000.0});
@@ -152,6 +161,7 @@ struct LoopReport {
   std::uint64_t loop_seq = 0;                  ///< its frame
   int matches = 0;             ///< point matches with the loop keyframe (best candidate)
   int inliers = 0;             ///< of those, explained by the similarity
+  geometry::Sim3d S_cand_new;  ///< the loop's similarity: new keyframe's camera -> old one's
   double scale = 1.0;          ///< scale of the correction at the new keyframe
   double shift = 0.0;          ///< translation of the new keyframe by the correction, map units
   int keyframes = 0;           ///< keyframes in the pose graph
@@ -221,6 +231,11 @@ class LoopCloser {
   /// Refits S_cand_new on its inliers until the set settles; inlier_ holds them. Returns
   /// their count.
   int refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, geometry::Sim3d& S_cand_new);
+  /// Refines S_cand_new on the inliers' reprojection errors in both keyframes
+  /// (refine_iterations); keeps it when at least as many matches agree, inlier_ then holding
+  /// them. Returns the inlier count (`inliers`, the current count, when not kept).
+  int refine_sim3(map::KeyframeId kf, const geometry::Pinhole& K, int inliers,
+                  geometry::Sim3d& S_cand_new);
   /// Guided search: the old views' points not matched yet, moved into the new keyframe by
   /// S_cand_new, matched to the new keyframe's unmatched map-point keypoints within
   /// fuse_radius_px sigmas; appended to matches_. Returns how many.
