@@ -386,7 +386,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.inliers = best.inliers;
       rep.loop_keyframe = cand;
       rep.loop_seq = map_.keyframe_seq(cand);
-      rep.S_cand_new = best.sim;
+      rep.similarity = best.sim;
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
       rep.closed = true;
     }

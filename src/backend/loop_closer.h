@@ -161,7 +161,7 @@ struct LoopReport {
   std::uint64_t loop_seq = 0;                  ///< its frame
   int matches = 0;             ///< point matches with the loop keyframe (best candidate)
   int inliers = 0;             ///< of those, explained by the similarity
-  geometry::Sim3d S_cand_new;  ///< the loop's similarity: new keyframe's camera -> old one's
+  geometry::Sim3d similarity;  ///< the loop's similarity: new keyframe's camera -> old one's
   double scale = 1.0;          ///< scale of the correction at the new keyframe
   double shift = 0.0;          ///< translation of the new keyframe by the correction, map units
   int keyframes = 0;           ///< keyframes in the pose graph

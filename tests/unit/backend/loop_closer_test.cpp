@@ -199,7 +199,7 @@ TEST(LoopCloser, ReprojectionRefinementRecoversTheLoopSimilarity) {
     o.refine_iterations = refine_iterations;
     LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
     rep = closer.spin_once(scene.b, scene.K);
-    const geometry::Sim3d& S = rep.S_cand_new;
+    const geometry::Sim3d& S = rep.similarity;
     Error e;
     e.scale = std::abs(S.s * LoopScene::kDrift - 1.0);
     e.t = (S.t - Eigen::Vector3d(LoopScene::kBaseline, 0.0, 0.0)).norm();
