@@ -77,7 +77,9 @@ struct LoopScene {
   // exact.
   explicit LoopScene(double depth_noise = 0.0) : map(options()) {
     std::mt19937_64 rng(7);
-    std::normal_distribution<double> depth_err(0.0, depth_noise);
+    // (std::normal_distribution needs a positive sigma; without noise nothing is drawn.)
+    std::normal_distribution<double> noise(0.0, depth_noise > 0.0 ? depth_noise : 1.0);
+    auto depth_err = [&](std::mt19937_64& g) { return depth_noise > 0.0 ? noise(g) : 0.0; };
     std::uniform_real_distribution<double> ux(-1.5, 1.5);
     std::uniform_real_distribution<double> uy(-1.0, 1.0);
     std::uniform_real_distribution<double> uz(2.0, 4.0);
