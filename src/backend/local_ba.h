@@ -63,15 +63,15 @@ inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", 
 
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
-  bool enabled = true;                ///< run local bundle adjustment after each keyframe
-  int window_keyframes = 8;           ///< keyframes optimized (the new one + most covisible)
-  int max_fixed_keyframes = 16;       ///< keyframes held fixed (most shared points first)
-  int max_iterations = 10;            ///< Levenberg-Marquardt iterations per solve
-  double max_time_ms = 50.0;          ///< wall-time budget of one run (all solves), ms
-  double huber_sigmas = 2.45;         ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
-  double anchored_sigma_scale = 0.5;  ///< sigma of an anchored keypoint, x its level's sigma
-  int anchored_min_observations = 3;  ///< anchored keypoints a point needs for that sigma
-  double outlier_chi2 = 5.991;        ///< squared error / sigma^2 above this is an outlier
+  bool enabled = true;                 ///< run local bundle adjustment after each keyframe
+  int window_keyframes = 8;            ///< keyframes optimized (the new one + most covisible)
+  int max_fixed_keyframes = 16;        ///< keyframes held fixed (most shared points first)
+  int max_iterations = 10;             ///< Levenberg-Marquardt iterations per solve
+  double max_time_ms = 50.0;           ///< wall-time budget of one run (all solves), ms
+  double huber_sigmas = 2.45;          ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
+  double anchored_sigma_scale = 0.15;  ///< sigma of an anchored keypoint, x its level's sigma
+  int anchored_min_observations = 3;   ///< anchored keypoints a point needs for that sigma
+  double outlier_chi2 = 5.991;         ///< squared error / sigma^2 above this is an outlier
   bool resolve_without_outliers = true;  ///< local runs: solve again with the outliers removed
   int min_inlier_observations = 2;       ///< points with fewer consistent observations are culled
   int full_max_iterations = 100;         ///< iterations of a full-graph optimization (--final-ba)

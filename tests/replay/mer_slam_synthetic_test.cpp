@@ -100,16 +100,27 @@ TEST(MerSlamSynthetic, GroundTruthCheckLeavesTheRunsOutputsAndScoresItsOwn) {
     EXPECT_EQ(count_lines((checked / f).string()), keyframes + 1) << f;  // and a header
   }
   // RGB-D: depth pins the geometry, so the BA from the truth ends about where the run's own
-  // final map is (measured: 0.91 mm against 0.91 mm; shuffled 0.92 mm).
+  // final map is (measured: 0.46 mm against 0.46 mm; with the detected keypoints' errors
+  // shuffled 0.29 mm).
   const double run_ate = static_cast<double>(s["accuracy_keyframes"]["ate_rmse_m"]);
   for (const char* key :
        {"accuracy_gt_converged", "accuracy_gt_shuffled", "accuracy_gt_shuffled_detected"}) {
     EXPECT_EQ(static_cast<int>(s[key]["pairs"]), keyframes) << key;
     EXPECT_EQ(static_cast<std::string>(s[key]["align"]), "se3") << key;
+  }
+  for (const char* key : {"accuracy_gt_converged", "accuracy_gt_shuffled_detected"}) {
     const double ate = static_cast<double>(s[key]["ate_rmse_m"]);
     EXPECT_GT(ate, 0.5 * run_ate) << key;
     EXPECT_LT(ate, 2.0 * run_ate) << key;
   }
+  // Every error shuffled within its level: detections' errors (0.39 level px RMS, against
+  // 0.18 for anchored keypoints) land on anchored keypoints, which weigh 1 / 0.15^2 = 44 times
+  // a detection (backend.anchored_sigma_scale), and the map ends farther off (1.57 mm) than
+  // with only the detections' errors shuffled: what the weighting relies on is which
+  // keypoints carry the small errors.
+  const double shuffled = static_cast<double>(s["accuracy_gt_shuffled"]["ate_rmse_m"]);
+  EXPECT_GT(shuffled, static_cast<double>(s["accuracy_gt_shuffled_detected"]["ate_rmse_m"]));
+  EXPECT_LT(shuffled, 5.0 * run_ate);
   EXPECT_TRUE(open_summary(plain)["gt_check"].empty());
 }
 
@@ -221,19 +232,18 @@ TEST(MerSlamSynthetic, RgbdMergesTheDuplicatesOfARevisitedPlace) {
 
 // Monocular loop closure: room_loop comes back to its start, the loop is found (descriptor
 // keys, Sim(3) check), the pose graph and loop fusion spread the drift, and the final map's
-// keyframes are better than with loop closure off (the drift stays in them there). Seed 4:
-// with the default seed 1 the weighted BA leaves less drift (0.04 % of the path on the final
-// keyframes without loop closure) than the loop's Sim(3) resolves (its scale, 1.010, is
-// within the 1 % its candidates spread over), and closing the loop ends at 0.07 %; on seeds
-// 2-12 closing the loop gains (README, "Accuracy today").
+// keyframes are better than with loop closure off (the drift stays in them there). Seed 7:
+// of the 16 of seeds 1-24 that close a loop with the defaults, its gain on the final keyframes
+// (0.048 -> 0.025 %) is the median one; seed 4, the test's seed before, gains 21 % (0.050 ->
+// 0.040 %) and seed 8 loses (0.038 -> 0.101 %) (README, "Accuracy today").
 TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
   const auto on = fresh_dir("mer_e2e_loop_on");
   const auto off = fresh_dir("mer_e2e_loop_off");
   const auto cfg_on = std::filesystem::temp_directory_path() / "mer_e2e_loop_on.yaml";
   const auto cfg_off = std::filesystem::temp_directory_path() / "mer_e2e_loop_off.yaml";
   for (const auto& [path, text] :
-       {std::pair{cfg_on, "camera:\n  synthetic:\n    seed: 4\n"},
-        std::pair{cfg_off, "camera:\n  synthetic:\n    seed: 4\nloop:\n  enabled: false\n"}}) {
+       {std::pair{cfg_on, "camera:\n  synthetic:\n    seed: 7\n"},
+        std::pair{cfg_off, "camera:\n  synthetic:\n    seed: 7\nloop:\n  enabled: false\n"}}) {
     std::FILE* f = std::fopen(path.string().c_str(), "w");
     ASSERT_NE(f, nullptr);
     std::fputs(text, f);
@@ -254,13 +264,13 @@ TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 100.0);
   const double kf_on = static_cast<double>(s["accuracy_keyframes"]["ate_pct_of_path"]);
   const double kf_off = static_cast<double>(so["accuracy_keyframes"]["ate_pct_of_path"]);
-  EXPECT_LT(kf_on, 0.15) << "final-map keyframes, % of the path (0.030 measured)";
-  EXPECT_LT(kf_on, 0.7 * kf_off) << "loop closure off: " << kf_off << " % (0.125 measured)";
+  EXPECT_LT(kf_on, 0.15) << "final-map keyframes, % of the path (0.025 measured)";
+  EXPECT_LT(kf_on, 0.7 * kf_off) << "loop closure off: " << kf_off << " % (0.048 measured)";
   // Every frame re-anchored to the corrected map: the loop's gain reaches the frames too,
   // through keyframes culled on the way (their lineage).
   const double tracked = static_cast<double>(s["accuracy"]["ate_pct_of_path"]);
   const double reanchored = static_cast<double>(s["accuracy_final"]["ate_pct_of_path"]);
-  EXPECT_LT(reanchored, 0.8 * tracked) << "measured 0.062 vs 0.127 %";
+  EXPECT_LT(reanchored, 0.8 * tracked) << "measured 0.065 vs 0.096 %";
   EXPECT_GT(static_cast<int>(s["final_trajectory"]["via_lineage"]), 0);
   EXPECT_EQ(static_cast<int>(s["final_trajectory"]["unresolved"]), 0);
 }
