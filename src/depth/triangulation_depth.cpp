@@ -71,6 +71,20 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
                              opts_.epipolar_sigmas * std::sqrt(sigma2(kq.level)),
                              static_cast<std::uint32_t>(j), kq.level});
     }
+    // Counting sort by level, stable in j.
+    int min_level = std::numeric_limits<int>::max();
+    int max_level = std::numeric_limits<int>::min();
+    for (const Candidate& c : candidates_) {
+      min_level = std::min(min_level, c.level);
+      max_level = std::max(max_level, c.level);
+    }
+    const auto bucket = [&](int level) { return static_cast<std::size_t>(level - min_level); };
+    level_begin_.assign(candidates_.empty() ? 1 : bucket(max_level) + 2, 0);
+    for (const Candidate& c : candidates_) ++level_begin_[bucket(c.level) + 1];
+    for (std::size_t b = 1; b < level_begin_.size(); ++b) level_begin_[b] += level_begin_[b - 1];
+    by_level_.resize(candidates_.size());
+    level_next_.assign(level_begin_.begin(), level_begin_.end());
+    for (const Candidate& c : candidates_) by_level_[level_next_[bucket(c.level)]++] = c;
     for (std::size_t i = 0; i < n; ++i) {
       if (!is_free(req.point_ids, i)) continue;
       const features::Keypoint& kp = req.keypoints[i];
@@ -81,12 +95,20 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       int best = std::numeric_limits<int>::max();
       int second = std::numeric_limits<int>::max();
       std::size_t best_j = m;
-      for (const Candidate& c : candidates_) {
-        if (std::abs(c.level - kp.level) > opts_.max_level_difference) continue;
+      if (candidates_.empty()) continue;
+      const int lo = std::max(min_level, kp.level - opts_.max_level_difference);
+      const int hi = std::min(max_level, kp.level + opts_.max_level_difference);
+      if (lo > hi) continue;
+      const auto first = by_level_.begin() + static_cast<std::ptrdiff_t>(level_begin_[bucket(lo)]);
+      const auto last =
+          by_level_.begin() + static_cast<std::ptrdiff_t>(level_begin_[bucket(hi) + 1]);
+      for (auto it = first; it != last; ++it) {
+        const Candidate& c = *it;
         const double dist_px = std::abs(l.dot(c.x)) / l_norm * f;
         if (dist_px > c.band_px) continue;
         const int d = features::hamming(req.descriptors[i], view.descriptors[c.j]);
-        if (d < best) {
+        // Ties go to the lowest keypoint index, whatever the order the levels come in.
+        if (d < best || (d == best && c.j < best_j)) {
           second = best;
           best = d;
           best_j = c.j;

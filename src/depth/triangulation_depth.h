@@ -38,6 +38,11 @@ class TriangulationDepth final : public DepthInference {
     int level = 0;
   };
   std::vector<Candidate> candidates_;
+  // The same, ordered by level (keypoint index ascending within a level), and where each
+  // level starts in it: a keypoint is compared with the levels near its own only.
+  std::vector<Candidate> by_level_;
+  std::vector<std::size_t> level_begin_;
+  std::vector<std::size_t> level_next_;  // fill cursor per level
 };
 
 }  // namespace mer::depth
