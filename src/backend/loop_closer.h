@@ -76,7 +76,7 @@ struct LoopOptions {
   int min_edge_weight = 15;          ///< shared points a covisibility pose-graph edge needs
   int pose_graph_iterations = 20;    ///< Levenberg-Marquardt iterations of the pose graph
   double fuse_radius_px = 6.0;       ///< loop fusion search radius, keypoint sigmas
-  int full_ba_iterations = 10;       ///< full-graph BA iterations after a loop (0: none)
+  int full_ba_iterations = 30;       ///< full-graph BA iterations after a loop (0: none)
   int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
   int consistent_checks = 1;         ///< consecutive keyframes that must find the same place
   double max_drift_fraction = 0.2;   ///< a loop implying more drift per path length is refused

@@ -233,9 +233,9 @@ TEST(MerSlamSynthetic, RgbdMergesTheDuplicatesOfARevisitedPlace) {
 // Monocular loop closure: room_loop comes back to its start, the loop is found (descriptor
 // keys, Sim(3) check), the pose graph and loop fusion spread the drift, and the final map's
 // keyframes are better than with loop closure off (the drift stays in them there). Seed 7:
-// of the 16 of seeds 1-24 that close a loop with the defaults, its gain on the final keyframes
-// (0.048 -> 0.025 %) is the median one; seed 4, the test's seed before, gains 21 % (0.050 ->
-// 0.040 %) and seed 8 loses (0.038 -> 0.101 %) (README, "Accuracy today").
+// each of the 16 of seeds 1-24 that close a loop with the defaults gains on the final
+// keyframes, by a ratio of 0.23-0.91; seed 7's (0.048 -> 0.025 %) is a median one (README,
+// "Accuracy today").
 TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
   const auto on = fresh_dir("mer_e2e_loop_on");
   const auto off = fresh_dir("mer_e2e_loop_off");
