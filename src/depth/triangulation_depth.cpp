@@ -71,6 +71,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
                              opts_.epipolar_sigmas * std::sqrt(sigma2(kq.level)),
                              static_cast<std::uint32_t>(j), kq.level});
     }
+    if (candidates_.empty()) continue;  // no free keypoint in this view: nothing to match
     // Counting sort by level, stable in j.
     int min_level = std::numeric_limits<int>::max();
     int max_level = std::numeric_limits<int>::min();
@@ -79,7 +80,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       max_level = std::max(max_level, c.level);
     }
     const auto bucket = [&](int level) { return static_cast<std::size_t>(level - min_level); };
-    level_begin_.assign(candidates_.empty() ? 1 : bucket(max_level) + 2, 0);
+    level_begin_.assign(bucket(max_level) + 2, 0);
     for (const Candidate& c : candidates_) ++level_begin_[bucket(c.level) + 1];
     for (std::size_t b = 1; b < level_begin_.size(); ++b) level_begin_[b] += level_begin_[b - 1];
     by_level_.resize(candidates_.size());
@@ -95,7 +96,6 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       int best = std::numeric_limits<int>::max();
       int second = std::numeric_limits<int>::max();
       std::size_t best_j = m;
-      if (candidates_.empty()) continue;
       const int lo = std::max(min_level, kp.level - opts_.max_level_difference);
       const int hi = std::min(max_level, kp.level + opts_.max_level_difference);
       if (lo > hi) continue;
