@@ -4,13 +4,17 @@
 /// with exact ground-truth poses and per-pixel depth. Deterministic for a given seed.
 ///
 /// Rendering is ray casting against the room's six walls (axis-aligned box, world z up),
-/// each wall carrying a procedural texture generated at open() from the seed (random
-/// rectangles and discs over a gradient: plenty of corners for feature detectors, no
-/// downloaded images). Per-pixel ray directions and textures are precomputed at open(), so
-/// acquire() does no allocation.
+/// each wall carrying a texture made at open() from the seed: procedural (random rectangles
+/// and discs over a gradient: plenty of corners for feature detectors) or photographs from a
+/// folder (`texture: photo`, default the Debian package mate-backgrounds), grey, cropped and
+/// resized, one photo per wall picked by the seed. Camera effects: additive noise, a
+/// sinusoidal and a stepped exposure gain, and motion blur (the mean of several renders
+/// spread over the exposure time along the trajectory). Per-pixel ray directions, textures
+/// and the blur accumulator are made at open(), so acquire() does no allocation.
 
 #include <array>
 #include <cstdint>
+#include <random>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -19,6 +23,17 @@
 #include "hal/camera.h"
 
 namespace mer::hal {
+
+/// Values of `camera.synthetic.texture`: auto is photo for the reproduction scenarios
+/// (hall_turn, room_explore, room_rotation, corridor, room_kidnap_unknown) and procedural for
+/// the others.
+inline constexpr std::array<std::string_view, 3> kSyntheticTextures{"auto", "procedural", "photo"};
+/// Values of `camera.synthetic.photo_set`: every photo, or one of two disjoint halves of the
+/// name-sorted list (dev: even positions, heldout: odd ones).
+inline constexpr std::array<std::string_view, 3> kSyntheticPhotoSets{"all", "dev", "heldout"};
+/// Default `camera.synthetic.photo_dir`, and the Debian package that fills it.
+inline constexpr std::string_view kDefaultPhotoDir = "/usr/share/backgrounds/mate";
+inline constexpr std::string_view kPhotoPackage = "mate-backgrounds";
 
 /// Options of the synthetic camera (config section `camera.synthetic`).
 struct SyntheticOptions {
@@ -45,6 +60,27 @@ struct SyntheticOptions {
   double hall_size_y = 50.0;        ///< hall_drive: hall extent along world y, m
   double hall_height = 10.0;        ///< hall_drive: hall height, m
   double drive_speed_mps = 5.6;     ///< hall_drive: driving speed, m/s
+  std::string texture = "auto";     ///< auto | procedural | photo (kSyntheticTextures)
+  std::string photo_dir{kDefaultPhotoDir};  ///< photo textures: folder searched for *.jpg
+  std::string photo_set = "all";            ///< photo textures: all | dev | heldout
+  double exposure_time_s = 0.0;     ///< motion blur: exposure time, s (0: no blur)
+  int blur_samples = 5;             ///< motion blur: renders averaged over the exposure
+  double exposure_step_every_s = 0.0;  ///< exposure steps: one gain jump every this many s (0: none)
+  double exposure_step_size = 0.25;    ///< exposure steps: each jump scales the gain by 1 +- this
+  double turn_angle_deg = 95.0;     ///< hall_turn: the first turn (left), degrees
+  double turn_duration_s = 4.0;     ///< hall_turn: duration of each turn, s
+  double turn_speed_mps = 3.5;      ///< hall_turn: speed through the turns, m/s
+  double walk_speed_mps = 0.25;     ///< room_explore: walking speed, m/s
+  double sweep_yaw_deg = 40.0;      ///< room_rotation: yaw sweep amplitude, degrees
+  double sweep_pitch_deg = 15.0;    ///< room_rotation: pitch sweep amplitude, degrees
+  double sweep_period_s = 6.0;      ///< room_rotation: period of the yaw sweep, s
+  double sweep_translation_m = 0.03;  ///< room_rotation: hand translation amplitude, m
+  double corridor_length = 24.0;    ///< corridor: length, m
+  double corridor_width = 2.0;      ///< corridor: width, m
+  double corridor_height = 2.5;     ///< corridor: height, m
+  double corridor_speed_mps = 1.0;  ///< corridor: walking speed, m/s
+  double corridor_contrast = 0.12;  ///< corridor: photo contrast kept on the white walls (0..1)
+  double kidnap_return_s = 6.0;     ///< room_kidnap_unknown: walk back to the mapped part, s
 
   template <class V>
   void visit(V& v) {
@@ -88,8 +124,65 @@ struct SyntheticOptions {
             options::Range<double>{20.0, 1000.0});
     v.field("hall_height", hall_height, "hall_drive: hall height, m",
             options::Range<double>{3.0, 100.0});
-    v.field("drive_speed_mps", drive_speed_mps, "hall_drive: driving speed, m/s",
+    v.field("drive_speed_mps", drive_speed_mps,
+            "hall_drive: driving speed, m/s (hall_turn: speed on its straights)",
             options::Range<double>{0.1, 50.0});
+    v.field("texture", texture,
+            "wall textures: procedural, photo (from photo_dir), or auto (photo for hall_turn, "
+            "room_explore, room_rotation, corridor, room_kidnap_unknown; procedural otherwise)",
+            options::OneOf{kSyntheticTextures});
+    v.field("photo_dir", photo_dir,
+            "photo textures: folder searched (recursively) for *.jpg; default from the Debian "
+            "package mate-backgrounds");
+    v.field("photo_set", photo_set,
+            "photo textures: all photos, or one half of the name-sorted list (dev: even "
+            "positions, heldout: odd), to choose settings on one half and check on the other",
+            options::OneOf{kSyntheticPhotoSets});
+    v.field("exposure_time_s", exposure_time_s,
+            "motion blur: exposure time centred on the frame time, s (0: no blur)",
+            options::Range<double>{0.0, 0.5});
+    v.field("blur_samples", blur_samples, "motion blur: renders averaged over the exposure",
+            options::Range<int>{2, 32});
+    v.field("exposure_step_every_s", exposure_step_every_s,
+            "exposure steps (auto-exposure jumps): one sudden gain change every this many s "
+            "(0: none)",
+            options::Range<double>{0.0, 1e6});
+    v.field("exposure_step_size", exposure_step_size,
+            "exposure steps: each jump multiplies or divides the gain by 1 + this",
+            options::Range<double>{0.0, 2.0});
+    v.field("turn_angle_deg", turn_angle_deg, "hall_turn: angle of the first (left) turn, deg",
+            options::Range<double>{10.0, 180.0});
+    v.field("turn_duration_s", turn_duration_s, "hall_turn: duration of each turn, s",
+            options::Range<double>{1.0, 30.0});
+    v.field("turn_speed_mps", turn_speed_mps, "hall_turn: speed through the turns, m/s",
+            options::Range<double>{0.5, 20.0});
+    v.field("walk_speed_mps", walk_speed_mps, "room_explore: walking speed, m/s",
+            options::Range<double>{0.05, 3.0});
+    v.field("sweep_yaw_deg", sweep_yaw_deg, "room_rotation: yaw sweep amplitude, deg",
+            options::Range<double>{0.0, 90.0});
+    v.field("sweep_pitch_deg", sweep_pitch_deg, "room_rotation: pitch sweep amplitude, deg",
+            options::Range<double>{0.0, 60.0});
+    v.field("sweep_period_s", sweep_period_s,
+            "room_rotation: period of the yaw sweep, s (pitch: 0.68 of it)",
+            options::Range<double>{0.5, 100.0});
+    v.field("sweep_translation_m", sweep_translation_m,
+            "room_rotation: amplitude of the hand's translation, m",
+            options::Range<double>{0.0, 0.5});
+    v.field("corridor_length", corridor_length, "corridor: length, m",
+            options::Range<double>{8.0, 200.0});
+    v.field("corridor_width", corridor_width, "corridor: width, m",
+            options::Range<double>{1.2, 10.0});
+    v.field("corridor_height", corridor_height, "corridor: height, m",
+            options::Range<double>{2.0, 10.0});
+    v.field("corridor_speed_mps", corridor_speed_mps, "corridor: walking speed, m/s",
+            options::Range<double>{0.1, 5.0});
+    v.field("corridor_contrast", corridor_contrast,
+            "corridor: contrast of the photo kept on the white walls (0: flat white)",
+            options::Range<double>{0.0, 1.0});
+    v.field("kidnap_return_s", kidnap_return_s,
+            "room_kidnap_unknown: after reappearing, time to walk and turn back to the mapped "
+            "part, s",
+            options::Range<double>{1.0, 1e6});
   }
 };
 
@@ -121,6 +214,28 @@ struct ScenarioSample {
 ///   (buildings and parked vehicles, 2-8 m) and walls carry 4x the texels and denser shapes.
 ///   A driving sequence like KITTI's: forward motion, a wide depth range and turns (use
 ///   `fps: 10` for KITTI's rate).
+///
+/// Reproductions of held-out failures (photo textures by default; their camera settings and
+/// effects are in `configs/scenarios/NAME.yaml`, passed with `--config`):
+/// - `hall_turn`: KITTI-like drive in the hall that starts inside a sharp low-speed left turn
+///   (`turn_angle_deg` in `turn_duration_s` at `turn_speed_mps`, yaw rate nonzero from the
+///   first frame), then a straight at up to 5 m/s, a second 90 degree left turn, a straight
+///   at `drive_speed_mps`, and stops 21.5 s in (then parked).
+/// - `room_explore`: handheld walk at `walk_speed_mps` round a 1.7 x 1.1 m rounded rectangle,
+///   looking ahead and 40 degrees outwards, with hand sway: new walls and boxes come into view
+///   all the time; passes through its start after one lap (about 20 s at 0.25 m/s). Meant
+///   for a bigger room (10 x 8 m, 16 boxes in its config).
+/// - `room_rotation`: rotation-dominant handheld motion from the first frame: yaw sweeps of
+///   +-`sweep_yaw_deg`, pitch sweeps of +-`sweep_pitch_deg`, a hand translation of
+///   +-`sweep_translation_m` (all zero: a static camera).
+/// - `corridor`: a `corridor_length` x `corridor_width` x `corridor_height` corridor with
+///   mostly white walls (the photos flattened to `corridor_contrast`), doors, posters,
+///   skirting and ceiling lights; walks along it at `corridor_speed_mps` with head yaw, turns
+///   round at the ends. The room_size_* and num_boxes options do not apply.
+/// - `room_kidnap_unknown`: handheld motion looking at the -x half of the room until
+///   `kidnap_start_s`, black for `kidnap_black_s`, then reappears in the +x half looking at
+///   the +x wall (never seen before), and walks and turns back over `kidnap_return_s` until
+///   it sees the mapped -x half again.
 std::span<const std::string_view> synthetic_scenarios();
 
 /// The synthetic camera. `paced` = true makes acquire() wait for each frame's due time
@@ -145,6 +260,14 @@ class SyntheticCamera final : public CameraSource {
   /// The boxes standing in the room (valid after open()).
   const std::vector<SceneBox>& boxes() const { return boxes_; }
 
+  /// The photos used as textures, one per wall (empty with procedural textures; valid after
+  /// open()).
+  const std::vector<std::string>& photo_files() const { return photo_files_; }
+
+  /// Every photo of `opts.photo_dir` in `opts.photo_set`, sorted by file name, or an error
+  /// naming the folder (and the package to install) when there is none.
+  static Status list_photos(const SyntheticOptions& opts, std::vector<std::string>& out);
+
   /// The room's (or hall's) minimum and maximum corners, world, m (valid after open()).
   Eigen::Vector3d room_lo() const { return {room_lo_[0], room_lo_[1], room_lo_[2]}; }
   Eigen::Vector3d room_hi() const { return {room_hi_[0], room_hi_[1], room_hi_[2]}; }
@@ -155,12 +278,55 @@ class SyntheticCamera final : public CameraSource {
   void render(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth, std::uint64_t noise_offset,
               float gain = 1.0F) const;
 
+  /// The exposure gain at `t_s`: 1 + A sin(2 pi t / period), times the exposure steps.
+  double gain_at(double t_s) const;
+
  private:
-  enum class Scenario { kOrbit, kLoop, kKidnap, kFastRotation, kHallDrive };
+  enum class Scenario {
+    kOrbit,
+    kLoop,
+    kKidnap,
+    kFastRotation,
+    kHallDrive,
+    kHallTurn,
+    kRoomExplore,
+    kRoomRotation,
+    kCorridor,
+    kKidnapUnknown
+  };
+  /// A wall texture as a mip pyramid: level l is (w >> l) x (h >> l), row-major.
+  struct Texture {
+    int w = 0;
+    int h = 0;
+    std::vector<std::vector<std::uint8_t>> levels;
+  };
+  /// hall_turn: the planar path tabulated at kPathStepS (x, y, heading), world, m and rad.
+  struct PathPoint {
+    double x = 0.0;
+    double y = 0.0;
+    double heading = 0.0;
+  };
   SE3d orbit_pose(double t_s) const;
   SE3d drive_pose(double t_s) const;
+  SE3d turn_pose(double t_s) const;
+  SE3d explore_pose(double t_s) const;
+  SE3d rotation_pose(double t_s) const;
+  SE3d corridor_pose(double t_s) const;
+  ScenarioSample kidnap_unknown_sample(double t_s) const;
   void place_boxes(std::uint32_t seed);
   void place_hall_boxes(std::uint32_t seed);
+  // Boxes clear of the camera positions sampled over the whole sequence (new scenarios).
+  void place_boxes_clear_of_path(std::uint32_t seed, bool hall);
+  Status make_turn_path_checked();
+  // One grey photo per wall, picked from the photo set by `rng` (fills photo_files_).
+  Status load_wall_photos(std::mt19937& rng, std::vector<cv::Mat>& photos);
+  void make_photo_textures(const std::vector<cv::Mat>& photos, std::mt19937& rng);
+  // corridor: white walls from `sources` (one grey image per wall), doors, posters, lights.
+  void make_corridor_textures(const std::vector<cv::Mat>& sources, std::mt19937& rng);
+  void render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth, std::uint64_t noise_offset,
+                   float gain, bool add_noise) const;
+  // Motion blur: the mean of blur_samples renders over the exposure, then noise.
+  void render_blurred(double t_s, Frame& f, float gain);
   // hall_drive: half extents of the path's rectangle and its corner radius, m.
   double drive_half_x() const;
   double drive_half_y() const;
@@ -173,16 +339,21 @@ class SyntheticCamera final : public CameraSource {
   CameraIntrinsics intrinsics_;
   std::unique_ptr<FramePool> pool_;
   std::vector<float> rays_;  // per pixel (x, y) of the ray at z = 1
-  // One texture per wall (shared by boxes), as a mip pyramid: level l is (size >> l)^2.
-  std::array<std::vector<std::vector<std::uint8_t>>, 6> textures_;
-  int texture_size_ = 0;                      // texels per side of level 0
+  // One texture per wall (index axis * 2 + side), shared by boxes.
+  std::array<Texture, 6> textures_;
+  int texture_size_ = 0;                      // texels per side of level 0 (square textures)
   bool use_mips_ = false;                     // pick a texture level per pixel (hall_drive only)
-  std::array<float, 3> wall_texels_per_m_{};  // level-0 texels per metre along each world axis
+  std::array<float, 6> wall_texels_per_m_{};  // per wall: level-0 texels per metre (max of axes)
   std::vector<SceneBox> boxes_;
   std::array<float, 3> room_lo_{};   // scene box minimum corner, world, m
   std::array<float, 3> room_hi_{};   // scene box maximum corner, world, m
   float box_texture_metres_ = 1.0F;  // one texture tile spans this many metres on a box face
   std::vector<std::int8_t> noise_;   // precomputed noise table
+  std::vector<std::string> photo_files_;  // photo per wall (photo textures)
+  std::vector<PathPoint> turn_path_;      // hall_turn: tabulated path, world
+  double turn_path_end_s_ = 0.0;          // hall_turn: the car stops here, s
+  cv::Mat blur_scratch_;                  // motion blur: one sub-exposure render
+  std::vector<std::uint16_t> blur_sum_;   // motion blur: per-pixel sum of the renders
   std::uint64_t next_seq_ = 0;
   std::int64_t start_wall_ns_ = 0;
   bool started_ = false;
