@@ -23,6 +23,8 @@ PACKAGES=(
   libopencv-core-dev libopencv-imgproc-dev libopencv-features2d-dev libopencv-imgcodecs-dev
   libcamera-dev
   libgtest-dev libbenchmark-dev
+  # photo textures of the synthetic camera (camera.synthetic.texture: photo)
+  mate-backgrounds
   clang-format clang-tidy
   # real-driver tests (label 'hw'): a stock Debian kernel booted in qemu
   qemu-system-x86 busybox-static cpio xz-utils kmod

@@ -2,9 +2,12 @@
 #include "hal/synthetic/synthetic_camera.h"
 
 #include <cmath>
+#include <filesystem>
+#include <set>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "platform/alloc_counter.h"
 
@@ -308,6 +311,534 @@ TEST(SyntheticCamera, PacedCameraKeepsItsRate) {
   }
   // 5 periods of 20 ms: at least 100 ms of wall time between first and last frame.
   EXPECT_GE(last - first, 95'000'000);
+}
+
+// ---- Reproduction scenarios, photo textures and camera effects ----
+
+constexpr double kPi = 3.14159265358979;
+constexpr std::array<const char*, 5> kNewScenarios{"hall_turn", "room_explore", "room_rotation",
+                                                   "corridor", "room_kidnap_unknown"};
+
+// Small images and procedural textures: these tests need no photo package.
+SyntheticOptions procedural_options() {
+  SyntheticOptions o = small_options();
+  o.texture = "procedural";
+  return o;
+}
+
+bool have_photos() {
+  return std::filesystem::is_directory(kDefaultPhotoDir);
+}
+
+#define SKIP_WITHOUT_PHOTOS()                                                              \
+  if (!have_photos()) {                                                                    \
+    GTEST_SKIP() << kDefaultPhotoDir << " is missing: apt-get install " << kPhotoPackage \
+                 << " (tools/dev.sh setup installs it)";                                   \
+  }
+
+std::uint64_t fnv1a(const cv::Mat& m) {
+  std::uint64_t h = 1469598103934665603ULL;
+  for (int r = 0; r < m.rows; ++r) {
+    const auto* p = m.ptr<std::uint8_t>(r);
+    for (std::size_t i = 0; i < static_cast<std::size_t>(m.cols) * m.elemSize(); ++i) {
+      h ^= p[i];
+      h *= 1099511628211ULL;
+    }
+  }
+  return h;
+}
+
+double heading_of(const SE3d& T) {
+  const Eigen::Vector3d axis = T.linear().col(2);
+  return std::atan2(axis.y(), axis.x());
+}
+
+// Mean squared Sobel gradient: drops when an image is blurred.
+double gradient_energy(const cv::Mat& gray) {
+  cv::Mat gx;
+  cv::Mat gy;
+  cv::Sobel(gray, gx, CV_32F, 1, 0);
+  cv::Sobel(gray, gy, CV_32F, 0, 1);
+  return cv::mean(gx.mul(gx) + gy.mul(gy))[0];
+}
+
+cv::Mat frame_at(SyntheticCamera& cam, int index) {
+  EXPECT_TRUE(cam.start().is_ok());
+  FrameHandle f;
+  for (int i = 0; i <= index; ++i) {
+    f.reset();
+    EXPECT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+  }
+  return f->gray.clone();
+}
+
+// The existing scenarios render exactly as before the reproduction scenarios, photo
+// textures and effects were added (hashes of frames 10, 100 and 290 taken before).
+TEST(SyntheticCamera, ExistingScenariosUnchangedByDefault) {
+  struct Expected {
+    const char* scenario;
+    std::array<std::uint64_t, 6> hashes;  // gray, depth at frames 10, 100, 290
+  };
+  const std::array<Expected, 5> expected{{
+      {"room_orbit",
+       {0x5de0b7c97ae03882ULL, 0x0e2d4f31f6ae513cULL, 0x5263e7286a0d0d77ULL, 0x547a2b72f89511c8ULL,
+        0x023abc571e2f2aa6ULL, 0x5ee183d91bd9d284ULL}},
+      {"room_loop",
+       {0x1e38c3a11ef21f4bULL, 0xb0ff203b10dc1195ULL, 0x836adbd28c520797ULL, 0xb20ae9a835bccc60ULL,
+        0xd331515d31263cdbULL, 0x5e29b29192f1f9fbULL}},
+      {"room_kidnap",
+       {0x5de0b7c97ae03882ULL, 0x0e2d4f31f6ae513cULL, 0x5263e7286a0d0d77ULL, 0x547a2b72f89511c8ULL,
+        0x7f54b4d6911044a5ULL, 0x4cd3060c503805deULL}},
+      {"room_fast_rotation",
+       {0x5de0b7c97ae03882ULL, 0x0e2d4f31f6ae513cULL, 0xf3636cd13794c691ULL, 0x1702e2b07db31363ULL,
+        0x023abc571e2f2aa6ULL, 0x5ee183d91bd9d284ULL}},
+      {"hall_drive",
+       {0x331121d2a180f498ULL, 0x577896cfd5270970ULL, 0xef563809e81953a0ULL, 0xc338b936b9164ff3ULL,
+        0x3e5c2c8b58f3e4c3ULL, 0xb6e91f9f79e44952ULL}},
+  }};
+  for (const Expected& e : expected) {
+    SyntheticOptions o = small_options();  // texture: auto, no blur, no steps
+    o.num_frames = 300;
+    SyntheticCamera cam(e.scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    ASSERT_TRUE(cam.start().is_ok());
+    EXPECT_TRUE(cam.photo_files().empty()) << e.scenario << ": auto stays procedural";
+    std::size_t k = 0;
+    for (int i = 0; i <= 290; ++i) {
+      FrameHandle f;
+      ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+      if (i != 10 && i != 100 && i != 290) continue;
+      EXPECT_EQ(fnv1a(f->gray), e.hashes[k]) << e.scenario << " frame " << i << " gray";
+      EXPECT_EQ(fnv1a(f->depth), e.hashes[k + 1]) << e.scenario << " frame " << i << " depth";
+      k += 2;
+    }
+  }
+}
+
+TEST(SyntheticCamera, NewScenariosRenderTexturedFramesWithSceneDepth) {
+  for (const char* scenario : kNewScenarios) {
+    SyntheticOptions o = procedural_options();
+    SyntheticCamera cam(scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok()) << scenario;
+    ASSERT_TRUE(cam.start().is_ok());
+    const CameraIntrinsics& K = cam.intrinsics();
+    for (int i = 0; i < 20; ++i) {
+      FrameHandle f;
+      ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame) << scenario;
+      if (i % 9 != 0) continue;
+      cv::Scalar mean;
+      cv::Scalar stddev;
+      cv::meanStdDev(f->gray, mean, stddev);
+      EXPECT_GT(stddev[0], 3.0) << scenario << " frame " << i;
+      for (int v = 0; v < o.height; v += 11) {
+        for (int u = 0; u < o.width; u += 11) {
+          const double z = f->depth.at<float>(v, u);
+          ASSERT_GT(z, 0.0);
+          const Eigen::Vector3d p_c((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+          EXPECT_LT(distance_to_scene(f->T_w_c_gt * p_c, cam), 1e-3 * std::max(1.0, 0.1 * z))
+              << scenario << " frame " << i << " pixel " << u << "," << v;
+        }
+      }
+    }
+  }
+}
+
+TEST(SyntheticCamera, HallTurnStartsInASharpLowSpeedTurn) {
+  SyntheticOptions o = procedural_options();
+  o.fps = 10.0;
+  o.num_frames = 160;
+  SyntheticCamera cam("hall_turn", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  // The first 4 s: 90-100 degrees to the left at 2.5-4.5 m/s, turning from the first frame.
+  double turned = 0.0;
+  double max_step_deg = 0.0;
+  for (int i = 0; i < 40; ++i) {
+    const SE3d a = cam.sample_at(i / 10.0).T_w_c;
+    const SE3d b = cam.sample_at((i + 1) / 10.0).T_w_c;
+    const double step = std::remainder(heading_of(b) - heading_of(a), 2.0 * kPi);
+    turned += step;
+    max_step_deg = std::max(max_step_deg, step * 180.0 / kPi);
+    const double speed = (b.translation() - a.translation()).head<2>().norm() * 10.0;
+    EXPECT_GE(speed, 2.5) << "frame " << i;
+    EXPECT_LE(speed, 4.5) << "frame " << i;
+    if (i == 0) {
+      EXPECT_GT(step * 180.0 / kPi, 1.5) << "turning from the first frame";
+    }
+  }
+  EXPECT_GE(turned * 180.0 / kPi, 90.0);
+  EXPECT_LE(turned * 180.0 / kPi, 100.0);
+  EXPECT_GT(max_step_deg, 2.8);
+  EXPECT_LT(max_step_deg, 4.0);
+  // Then it drives on and turns left again: 16 s make 185 degrees and over 50 m, inside the
+  // hall, level and clear of the boxes.
+  double length = 0.0;
+  double total = 0.0;
+  for (int i = 0; i < 160; ++i) {
+    const SE3d a = cam.sample_at(i / 10.0).T_w_c;
+    const SE3d b = cam.sample_at((i + 1) / 10.0).T_w_c;
+    total += std::remainder(heading_of(b) - heading_of(a), 2.0 * kPi);
+    length += (b.translation() - a.translation()).head<2>().norm();
+    const Eigen::Vector3d c = b.translation();
+    EXPECT_NEAR(c.z(), 1.65, 0.03);
+    EXPECT_TRUE((c.head<2>().array() > cam.room_lo().head<2>().array() + 5.0).all() &&
+                (c.head<2>().array() < cam.room_hi().head<2>().array() - 5.0).all());
+    for (const auto& box : cam.boxes()) {
+      const double gx = std::max({0.0, box.lo.x() - c.x(), c.x() - box.hi.x()});
+      const double gy = std::max({0.0, box.lo.y() - c.y(), c.y() - box.hi.y()});
+      EXPECT_GE(std::hypot(gx, gy), 2.9);
+    }
+  }
+  EXPECT_NEAR(total * 180.0 / kPi, 185.0, 1.0);
+  EXPECT_GT(length, 50.0);
+  // A hall too small for the drive is refused, naming the options.
+  o.hall_size_y = 30.0;
+  SyntheticCamera small("hall_turn", o, false);
+  const Status s = small.open(2);
+  EXPECT_FALSE(s.is_ok());
+  EXPECT_NE(s.message().find("hall_size"), std::string::npos) << s.message();
+}
+
+TEST(SyntheticCamera, RoomExploreWalksOutAndReturnsThroughItsStart) {
+  SyntheticOptions o = procedural_options();
+  o.room_size_x = 10.0;
+  o.room_size_y = 8.0;
+  o.num_boxes = 16;
+  o.num_frames = 600;
+  SyntheticCamera cam("room_explore", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  EXPECT_EQ(cam.boxes().size(), 16U);
+  const SE3d start = cam.sample_at(0.0).T_w_c;
+  double closest_late = 1e9;   // closest approach to the start after 15 s
+  double farthest = 0.0;
+  double max_view_change = 0.0;  // largest heading difference from the start view
+  double turned = 0.0;
+  for (int i = 1; i < 600; ++i) {
+    const SE3d a = cam.sample_at((i - 1) / 30.0).T_w_c;
+    const SE3d b = cam.sample_at(i / 30.0).T_w_c;
+    const double speed = (b.translation() - a.translation()).head<2>().norm() * 30.0;
+    EXPECT_LT(speed, 0.5) << "hand-held walk, frame " << i;
+    turned += std::remainder(heading_of(b) - heading_of(a), 2.0 * kPi);
+    const double d = (b.translation() - start.translation()).norm();
+    farthest = std::max(farthest, d);
+    if (i > 450) closest_late = std::min(closest_late, d);
+    max_view_change = std::max(
+        max_view_change, std::abs(std::remainder(heading_of(b) - heading_of(start), 2.0 * kPi)));
+  }
+  EXPECT_GT(farthest, 1.0) << "it must go somewhere";
+  EXPECT_GT(max_view_change * 180.0 / kPi, 150.0) << "views round the whole room";
+  EXPECT_GT(turned * 180.0 / kPi, 300.0);
+  EXPECT_LT(closest_late, 0.10) << "passes back through its start";
+}
+
+TEST(SyntheticCamera, RoomRotationIsRotationDominantFromTheFirstFrame) {
+  SyntheticOptions o = procedural_options();
+  o.num_frames = 300;
+  SyntheticCamera cam("room_rotation", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  const SE3d start = cam.sample_at(0.0).T_w_c;
+  double yaw_min = 0.0;
+  double yaw_max = 0.0;
+  double max_translation = 0.0;
+  for (int i = 0; i <= 300; ++i) {
+    const SE3d T = cam.sample_at(i / 30.0).T_w_c;
+    max_translation = std::max(max_translation, (T.translation() - start.translation()).norm());
+    const double yaw = std::remainder(heading_of(T) - heading_of(start), 2.0 * kPi);
+    yaw_min = std::min(yaw_min, yaw);
+    yaw_max = std::max(yaw_max, yaw);
+  }
+  EXPECT_LT(max_translation, 0.10) << "a few cm of translation";
+  EXPECT_GT((yaw_max - yaw_min) * 180.0 / kPi, 70.0) << "sweeps of +-30-45 degrees";
+  // The first frames already rotate at a hand-held rate: over 1 deg per frame at 30 Hz,
+  // while moving under 3 mm.
+  const SE3d f1 = cam.sample_at(1.0 / 30.0).T_w_c;
+  const double rot_deg =
+      Eigen::Quaterniond(start.linear()).angularDistance(Eigen::Quaterniond(f1.linear())) * 180.0 / kPi;
+  EXPECT_GT(rot_deg, 1.0);
+  EXPECT_LT((f1.translation() - start.translation()).norm(), 0.003);
+}
+
+TEST(SyntheticCamera, CorridorIsLongNarrowAndMostlyWhite) {
+  SyntheticOptions o = procedural_options();
+  o.fps = 10.0;
+  o.num_frames = 200;
+  SyntheticCamera cam("corridor", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  EXPECT_DOUBLE_EQ(cam.room_hi().x() - cam.room_lo().x(), o.corridor_length);
+  EXPECT_DOUBLE_EQ(cam.room_hi().y() - cam.room_lo().y(), o.corridor_width);
+  EXPECT_TRUE(cam.boxes().empty());
+  double length = 0.0;
+  for (int i = 1; i <= 200; ++i) {
+    const SE3d a = cam.sample_at((i - 1) / 10.0).T_w_c;
+    const SE3d b = cam.sample_at(i / 10.0).T_w_c;
+    length += (b.translation() - a.translation()).head<2>().norm();
+    EXPECT_LT(std::abs(b.translation().y()), 0.5 * o.corridor_width - 0.5) << "frame " << i;
+  }
+  EXPECT_GT(length, 18.0) << "~1 m/s for 20 s";
+  // Low texture: bright and flat next to room_orbit's walls.
+  SyntheticOptions ro = small_options();
+  ro.num_frames = 40;
+  SyntheticCamera room("room_orbit", ro, false);
+  ASSERT_TRUE(room.open(2).is_ok());
+  const cv::Mat c = frame_at(cam, 30);
+  const cv::Mat r = frame_at(room, 30);
+  EXPECT_GT(cv::mean(c)[0], 150.0);
+  EXPECT_LT(gradient_energy(c), 0.5 * gradient_energy(r));
+}
+
+TEST(SyntheticCamera, KidnapUnknownReappearsWhereNothingWasSeen) {
+  SyntheticOptions o = procedural_options();
+  o.room_size_x = 10.0;
+  o.room_size_y = 8.0;
+  o.num_frames = 600;
+  SyntheticCamera cam("room_kidnap_unknown", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  ASSERT_TRUE(cam.start().is_ok());
+  const CameraIntrinsics& K = cam.intrinsics();
+  std::vector<SE3d> poses;
+  std::vector<cv::Mat> depths;
+  int first_back = -1;  // the first frame after the blackout (t = 9 s)
+  cv::Mat reappear_depth;
+  SE3d reappear = SE3d::Identity();
+  for (int i = 0; i < 600; ++i) {
+    FrameHandle f;
+    ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+    const double t = static_cast<double>(f->t_ns) * 1e-9;
+    const bool black = t >= o.kidnap_start_s && t < o.kidnap_start_s + o.kidnap_black_s;
+    EXPECT_EQ(f->has_ground_truth, !black) << "frame " << i;
+    if (black) continue;
+    if (t < o.kidnap_start_s && i % 3 == 0) {
+      poses.push_back(f->T_w_c_gt);
+      depths.push_back(f->depth.clone());
+    }
+    if (t > o.kidnap_start_s && first_back < 0) {
+      first_back = i;
+      reappear = f->T_w_c_gt;
+      reappear_depth = f->depth.clone();
+    }
+    if (i == 599) {
+      // Back home: looking at the mapped half again.
+      EXPECT_GT(f->T_w_c_gt.linear().col(2).dot(poses.front().linear().col(2)), 0.9);
+    }
+  }
+  // Its view direction differs by more than 90 degrees from every earlier one ...
+  for (const SE3d& T : poses) {
+    EXPECT_LT(reappear.linear().col(2).dot(T.linear().col(2)), 0.0);
+  }
+  EXPECT_GT((reappear.translation() - poses.back().translation()).norm(), 2.0);
+  // ... and almost none of the surface it sees was seen before: a back-projected pixel counts
+  // as seen when an earlier frame saw that point (in its image, at its depth).
+  int seen = 0;
+  int total = 0;
+  for (int v = 0; v < o.height; v += 6) {
+    for (int u = 0; u < o.width; u += 6) {
+      const double z = reappear_depth.at<float>(v, u);
+      const Eigen::Vector3d p_w = reappear * Eigen::Vector3d((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+      ++total;
+      for (std::size_t k = 0; k < poses.size(); ++k) {
+        const Eigen::Vector3d p_c = poses[k].inverse() * p_w;
+        if (p_c.z() <= 0.05) continue;
+        const double pu = K.fx * p_c.x() / p_c.z() + K.cx;
+        const double pv = K.fy * p_c.y() / p_c.z() + K.cy;
+        if (pu < 0 || pv < 0 || pu > o.width - 1 || pv > o.height - 1) continue;
+        const double zk = depths[k].at<float>(static_cast<int>(pv), static_cast<int>(pu));
+        if (std::abs(zk - p_c.z()) < 0.05 * p_c.z()) {
+          ++seen;
+          break;
+        }
+      }
+    }
+  }
+  EXPECT_LT(seen, total / 50) << seen << " of " << total << " points were seen before";
+}
+
+TEST(SyntheticCamera, MotionBlurBlursAMovingCameraOnly) {
+  // Moving: room_rotation's sweep; static: the same with every amplitude zero.
+  auto energy = [](double exposure, bool moving, cv::Mat* out) {
+    SyntheticOptions o = procedural_options();
+    o.width = 320;
+    o.height = 240;
+    o.noise_sigma = 0.0;
+    o.exposure_time_s = exposure;
+    if (!moving) {
+      o.sweep_yaw_deg = 0.0;
+      o.sweep_pitch_deg = 0.0;
+      o.sweep_translation_m = 0.0;
+    }
+    SyntheticCamera cam("room_rotation", o, false);
+    EXPECT_TRUE(cam.open(2).is_ok());
+    const cv::Mat img = frame_at(cam, 3);
+    if (out != nullptr) *out = img;
+    return gradient_energy(img);
+  };
+  const double e0 = energy(0.0, true, nullptr);
+  const double e1 = energy(0.01, true, nullptr);
+  const double e2 = energy(0.03, true, nullptr);
+  EXPECT_LT(e1, 0.9 * e0);
+  EXPECT_LT(e2, 0.8 * e1);
+  cv::Mat still0;
+  cv::Mat still1;
+  energy(0.0, false, &still0);
+  energy(0.03, false, &still1);
+  EXPECT_EQ(cv::norm(still0, still1, cv::NORM_L1), 0.0) << "a static camera is not blurred";
+}
+
+TEST(SyntheticCamera, MotionBlurKeepsNoiseAndDepthOfTheFrameTime) {
+  SyntheticOptions o = procedural_options();
+  o.exposure_time_s = 0.02;
+  for (int samples : {4, 5}) {
+    o.blur_samples = samples;
+    SyntheticCamera cam("room_rotation", o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    ASSERT_TRUE(cam.start().is_ok());
+    FrameHandle f;
+    ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+    cv::Mat depth(o.height, o.width, CV_32FC1);
+    cv::Mat gray(o.height, o.width, CV_8UC1);
+    cam.render(f->T_w_c_gt, gray, &depth, 0);
+    EXPECT_EQ(cv::norm(depth, f->depth, cv::NORM_INF), 0.0) << samples << " samples";
+  }
+}
+
+TEST(SyntheticCamera, ExposureStepsJumpTheGain) {
+  SyntheticOptions o = procedural_options();
+  o.exposure_step_every_s = 1.0;
+  o.exposure_step_size = 0.3;
+  SyntheticCamera cam("room_rotation", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  EXPECT_DOUBLE_EQ(cam.gain_at(0.5), 1.0);
+  for (int k = 1; k <= 8; ++k) {
+    const double before = cam.gain_at(k - 0.01);
+    const double after = cam.gain_at(k + 0.01);
+    EXPECT_DOUBLE_EQ(cam.gain_at(k + 0.5), after) << "constant between steps";
+    const double ratio = after / before;
+    EXPECT_TRUE(std::abs(ratio - 1.3) < 1e-9 || std::abs(ratio - 1.0 / 1.3) < 1e-9) << ratio;
+    EXPECT_LE(std::abs(std::log(after) / std::log(1.3)), 2.0 + 1e-9) << "within two notches";
+  }
+  // Off by default.
+  SyntheticCamera plain("room_rotation", procedural_options(), false);
+  ASSERT_TRUE(plain.open(2).is_ok());
+  EXPECT_DOUBLE_EQ(plain.gain_at(3.5), 1.0);
+}
+
+TEST(SyntheticCamera, NewScenariosAreDeterministicAndAllocationFree) {
+  SyntheticOptions o = procedural_options();
+  o.exposure_time_s = 0.01;
+  o.exposure_step_every_s = 0.2;
+  for (const char* scenario : kNewScenarios) {
+    auto run = [&](int seed) {
+      SyntheticOptions so = o;
+      so.seed = seed;
+      SyntheticCamera cam(scenario, so, false);
+      EXPECT_TRUE(cam.open(2).is_ok());
+      EXPECT_TRUE(cam.start().is_ok());
+      cv::Mat last;
+      for (int i = 0; i < 4; ++i) {
+        FrameHandle f;
+        const auto before = platform::alloc::thread_allocations();
+        EXPECT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+        last = f->gray;  // shares the pool buffer: no allocation
+        if (i > 0) {
+          EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U) << scenario << " frame " << i;
+        }
+        last = last.clone();
+      }
+      return last;
+    };
+    const cv::Mat a = run(1);
+    const cv::Mat b = run(1);
+    const cv::Mat c = run(2);
+    EXPECT_EQ(cv::norm(a, b, cv::NORM_L1), 0.0) << scenario;
+    EXPECT_GT(cv::norm(a, c, cv::NORM_L1), 1000.0) << scenario;
+  }
+}
+
+TEST(SyntheticCamera, MissingPhotoFolderIsAClearError) {
+  SyntheticOptions o = small_options();
+  o.texture = "photo";
+  o.photo_dir = "/nonexistent/photos";
+  SyntheticCamera cam("room_orbit", o, false);
+  const Status s = cam.open(2);
+  ASSERT_FALSE(s.is_ok());
+  EXPECT_NE(s.message().find("/nonexistent/photos"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("mate-backgrounds"), std::string::npos) << s.message();
+  // texture: auto means photo for the reproduction scenarios: no silent fallback either.
+  o.texture = "auto";
+  SyntheticCamera turn("hall_turn", o, false);
+  EXPECT_FALSE(turn.open(2).is_ok());
+}
+
+TEST(SyntheticCamera, PhotoTexturesLoadOnePhotoPerWallBySeed) {
+  SKIP_WITHOUT_PHOTOS();
+  SyntheticOptions o = small_options();
+  o.texture = "photo";
+  std::set<std::string> first;
+  std::vector<std::string> seeds_1;
+  for (int seed : {1, 2}) {
+    o.seed = seed;
+    SyntheticCamera cam("room_orbit", o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    ASSERT_EQ(cam.photo_files().size(), 6U);
+    const std::set<std::string> distinct(cam.photo_files().begin(), cam.photo_files().end());
+    EXPECT_EQ(distinct.size(), 6U) << "a different photo on each wall";
+    if (seed == 1) {
+      seeds_1 = cam.photo_files();
+    } else {
+      EXPECT_NE(cam.photo_files(), seeds_1) << "seeds pick different photos";
+    }
+    const cv::Mat img = frame_at(cam, 0);
+    cv::Scalar mean;
+    cv::Scalar stddev;
+    cv::meanStdDev(img, mean, stddev);
+    EXPECT_GT(stddev[0], 10.0);
+  }
+}
+
+TEST(SyntheticCamera, PhotoSetsSplitTheListInTwoDisjointHalves) {
+  SKIP_WITHOUT_PHOTOS();
+  SyntheticOptions o;
+  std::vector<std::string> all;
+  std::vector<std::string> dev;
+  std::vector<std::string> heldout;
+  o.photo_set = "all";
+  ASSERT_TRUE(SyntheticCamera::list_photos(o, all).is_ok());
+  o.photo_set = "dev";
+  ASSERT_TRUE(SyntheticCamera::list_photos(o, dev).is_ok());
+  o.photo_set = "heldout";
+  ASSERT_TRUE(SyntheticCamera::list_photos(o, heldout).is_ok());
+  EXPECT_GE(all.size(), 12U);
+  EXPECT_EQ(dev.size() + heldout.size(), all.size());
+  EXPECT_LE(std::abs(static_cast<int>(dev.size()) - static_cast<int>(heldout.size())), 1);
+  for (const std::string& p : dev) {
+    EXPECT_EQ(std::count(heldout.begin(), heldout.end(), p), 0) << p;
+    EXPECT_EQ(p.find("_3840x2160"), std::string::npos) << "resolution variants are left out";
+  }
+  // A wall photo comes from the chosen half.
+  o.texture = "photo";
+  o.width = 64;
+  o.height = 48;
+  SyntheticCamera cam("room_explore", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  for (const std::string& p : cam.photo_files()) {
+    EXPECT_EQ(std::count(heldout.begin(), heldout.end(), p), 1) << p;
+  }
+}
+
+TEST(SyntheticCamera, ScenarioConfigsOpenWithPhotosAndBlur) {
+  SKIP_WITHOUT_PHOTOS();
+  // The reproduction scenarios' defaults (texture: auto -> photo) with their configs' effects.
+  for (const char* scenario : kNewScenarios) {
+    SyntheticOptions o = small_options();
+    o.exposure_time_s = 0.01;
+    o.exposure_step_every_s = 5.0;
+    SyntheticCamera cam(scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok()) << scenario;
+    EXPECT_EQ(cam.photo_files().size(), 6U) << scenario;
+    const cv::Mat img = frame_at(cam, 5);
+    cv::Scalar mean;
+    cv::Scalar stddev;
+    cv::meanStdDev(img, mean, stddev);
+    EXPECT_GT(stddev[0], 2.0) << scenario;
+  }
 }
 
 }  // namespace
