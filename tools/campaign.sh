@@ -15,6 +15,11 @@
 #          loop    room_loop mono, seeds 1-5
 #          hall    hall_drive (KITTI-like: 10 Hz, 1241x376, 81.6 deg), 160 frames, seeds 1-6
 #          kitti   kitti_clip1, kitti_clip2 (skipped, and said so, without ../shared/data)
+#          hard    the reproductions of held-out failures, each with its
+#                  configs/scenarios/NAME.yaml: hall_turn, room_explore, room_rotation,
+#                  corridor, room_kidnap_unknown, seeds 1-3; printed in a table of their own:
+#                  frames, first frame with a pose, % tracked after it (summary.json
+#                  accuracy.tracked_after_init_pct), frames lost, ATE (m and % of the path)
 #          robust  orbit and loop seeds under four small keyframe-policy changes besides the
 #                  default (tracking.keyframe.min_baseline_ratio 0.05 / 0.015, min_spread
 #                  0.40 / 0.50): counts the runs that diverge (re-anchored ATE above
@@ -28,7 +33,9 @@
 #     --diverged PCT    a run above this re-anchored ATE counts as diverged (default 2.0)
 #     --keep            keep every run's output directory (default: summary.json only)
 #     --max-frames N    stop every run after N frames (a quick check of the campaign itself)
-#     --seeds A-B       seeds A to B for orbit, loop and hall instead of their defaults (seeds
+#     --photo-set SET   camera.synthetic.photo_set of the hard runs: all (default), dev or
+#                       heldout (choose settings on dev, check them on heldout)
+#     --seeds A-B       seeds A to B for orbit, loop, hall and hard instead of their defaults (seeds
 #                       not used to choose a setting: a check that a change generalizes)
 #     --gt-check        run mer_slam --gt-check: what each map's observations allow (columns
 #                       gtconv% and gtshuf%, and their geometric means)
@@ -44,6 +51,7 @@ KEEP=0
 MAX_FRAMES=()
 SEEDS=""
 GT_CHECK=()
+PHOTO_SET=all
 SHARED="$ROOT/../shared/data"
 
 usage() { sed -n '2,/^[^#]/{/^#/s/^# \{0,1\}//p}' "${BASH_SOURCE[0]}"; exit "${1:-2}"; }
@@ -61,8 +69,9 @@ while [ $# -gt 0 ]; do
     --max-frames) MAX_FRAMES=(--max-frames "${2:?--max-frames needs a number}"); shift 2 ;;
     --seeds) SEEDS="${2:?--seeds needs A-B}"; shift 2 ;;
     --gt-check) GT_CHECK=(--gt-check); shift ;;
+    --photo-set) PHOTO_SET="${2:?--photo-set needs all, dev or heldout}"; shift 2 ;;
     -h|--help) usage 0 ;;
-    orbit|loop|hall|kitti|robust) sets+=("$1"); shift ;;
+    orbit|loop|hall|kitti|robust|hard) sets+=("$1"); shift ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
 done
@@ -70,6 +79,7 @@ done
 [ -x "$BIN" ] || die "no mer_slam at '$BIN' (tools/dev.sh build release, or --bin)"
 [ -z "$EXTRA" ] || [ -r "$EXTRA" ] || die "cannot read --config '$EXTRA'"
 [[ "$JOBS" =~ ^[1-9][0-9]*$ ]] || die "--jobs must be a positive integer, not '$JOBS'"
+[[ "$PHOTO_SET" =~ ^(all|dev|heldout)$ ]] || die "--photo-set must be all, dev or heldout, not '$PHOTO_SET'"
 [[ "$DIVERGED" =~ ^[0-9]+(\.[0-9]+)?$ ]] || die "--diverged must be a number, not '$DIVERGED'"
 if [ -n "$SEEDS" ]; then
   [[ "$SEEDS" =~ ^([0-9]+)-([0-9]+)$ ]] && [ "${BASH_REMATCH[1]}" -le "${BASH_REMATCH[2]}" ] ||
@@ -81,7 +91,9 @@ seeds_of() {
 }
 mkdir -p "$OUT"
 RESULTS="$OUT/results.txt"
+HARD_RESULTS="$OUT/results_hard.txt"
 : > "$RESULTS"
+: > "$HARD_RESULTS"
 
 # One run: NAME INPUT then the YAML text of its configuration on stdin.
 run_one() {
@@ -93,7 +105,8 @@ run_one() {
   if [ -n "$EXTRA" ]; then printf '\n' >> "$dir/config.yaml" && cat "$EXTRA" >> "$dir/config.yaml"; fi
   if ! "$BIN" --input "$input" --lockstep --quiet --config "$dir/config.yaml" --output "$dir" \
       "${MAX_FRAMES[@]}" "${GT_CHECK[@]}" > "$dir/log.txt" 2>&1; then
-    echo "$name failed: see $dir/log.txt" >> "$RESULTS"
+    if [[ "$name" == hard_* ]]; then echo "$name failed: see $dir/log.txt" >> "$HARD_RESULTS"
+    else echo "$name failed: see $dir/log.txt" >> "$RESULTS"; fi
     return
   fi
   local s
@@ -103,6 +116,21 @@ run_one() {
     v="$(sed -n "s/.*\"$1\": {[^}]*\"$2\": \([-0-9.eE+]*\).*/\1/p" <<< "$s" | head -n 1)"
     echo "${v:--}"
   }
+  if [[ "$name" == hard_* ]]; then
+    # frames, first frame with a pose (frames.csv state), tracked after it, lost, ATE.
+    local first frames
+    first="$(awk -F, 'NR > 1 && $3 != "not_initialized" && $3 != "lost" { print $1; exit }' \
+      "$dir/frames.csv")"
+    frames="$(sed -n 's/.*"frames_processed": \([0-9]*\).*/\1/p' <<< "$s" | head -n 1)"
+    printf '%-30s %7s %7s %9s %6s %9s %9s\n' "$name" "${frames:--}" "${first:--}" \
+      "$(field accuracy tracked_after_init_pct)" "$(field tracking lost)" \
+      "$(field accuracy ate_rmse_m)" "$(field accuracy ate_pct_of_path)" >> "$HARD_RESULTS"
+    if [ "$KEEP" -eq 0 ]; then
+      find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml \
+        ! -name frames.csv -delete
+    fi
+    return
+  fi
   printf '%-22s %9s %9s %9s %10s %6s %8s %8s %8s\n' "$name" \
     "$(field accuracy ate_pct_of_path)" "$(field accuracy_final ate_pct_of_path)" \
     "$(field accuracy_keyframes ate_pct_of_path)" "$(field accuracy_final ate_rmse_m)" \
@@ -125,6 +153,13 @@ queue() {  # NAME INPUT YAML
 }
 
 seed_yaml() { printf 'camera:\n  synthetic:\n    seed: %s\n' "$1"; }
+# A hard run: its scenario file with the seed and photo set added to camera.synthetic.
+hard_yaml() {
+  awk -v seed="$2" -v set="$PHOTO_SET" '
+    { print }
+    /^  synthetic:[[:space:]]*$/ { printf "    seed: %s\n    photo_set: \"%s\"\n", seed, set }' \
+    "$ROOT/configs/scenarios/$1.yaml"
+}
 hall_yaml() {
   printf 'camera:\n  synthetic:\n    fps: 10\n    num_frames: 160\n    width: 1241\n'
   printf '    height: 376\n    fov_x_deg: 81.6\n    seed: %s\n' "$1"
@@ -150,6 +185,12 @@ for set in "${sets[@]}"; do
         echo "campaign: $SHARED/kitti_clip1 not found: kitti set skipped" >&2
       fi
       ;;
+    hard)
+      for n in hall_turn room_explore room_rotation corridor room_kidnap_unknown; do
+        [ -r "$ROOT/configs/scenarios/$n.yaml" ] || die "missing configs/scenarios/$n.yaml"
+        for s in $(seeds_of 1 2 3); do queue "hard_${n}_s$s" "synthetic:$n" "$(hard_yaml "$n" "$s")"; done
+      done
+      ;;
     robust)
       for p in "def:" "mbr05:min_baseline_ratio: 0.05" "mbr015:min_baseline_ratio: 0.015" \
                "ms040:min_spread: 0.40" "ms050:min_spread: 0.50"; do
@@ -170,6 +211,16 @@ done
 wait || true
 
 sort -o "$RESULTS" "$RESULTS"
+if [ -s "$HARD_RESULTS" ]; then
+  sort -o "$HARD_RESULTS" "$HARD_RESULTS"
+  printf '%-30s %7s %7s %9s %6s %9s %9s\n' run frames first tracked% lost ate_m ate%
+  cat "$HARD_RESULTS"
+  awk '$2 != "failed:" { n++; if ($4 != "-") { t += $4; m++ } } $2 == "failed:" { f++ }
+    END { printf "hard runs %d, failed %d", n + f, f + 0
+          if (m > 0) printf ", mean tracked after the first pose %.1f %%", t / m
+          printf "\n" }' "$HARD_RESULTS"
+  [ -s "$RESULTS" ] || exit 0
+fi
 printf '%-22s %9s %9s %9s %10s %6s %8s %8s %8s\n' run tracked% final% keyfr% final_m loops kfstep \
   gtconv% gtshuf%
 cat "$RESULTS"
