@@ -55,29 +55,29 @@ constexpr int kHallShapesPerWall = 3000;       // hall_drive: texture primitives
 constexpr double kHallShapeRadiusMin = 0.004;  // hall_drive: shape radius, fraction of the side
 constexpr double kHallShapeRadiusMax = 0.02;
 // Reproduction scenarios (hall_turn ... room_kidnap_unknown).
-constexpr double kPathStepS = 1e-3;           // hall_turn: path table step, s
-constexpr double kTurnPathMargin = 5.0;       // hall_turn: the path keeps this far from walls, m
+constexpr double kPathStepS = 1e-3;      // hall_turn: path table step, s
+constexpr double kTurnPathMargin = 5.0;  // hall_turn: the path keeps this far from walls, m
 constexpr double kSecondTurnRad = 0.5 * std::numbers::pi;  // hall_turn: second left turn
-constexpr double kBoxPathSampleS = 0.05;      // boxes are kept clear of the camera sampled so
-constexpr double kBoxPathMaxS = 120.0;        // ... over at most this much of the sequence, s
-constexpr double kRoomPathClearance = 0.6;    // new room scenarios: box clearance, m
-constexpr double kFurnitureMinSide = 0.4;     // new room scenarios: box footprint side, m
+constexpr double kBoxPathSampleS = 0.05;    // boxes are kept clear of the camera sampled so
+constexpr double kBoxPathMaxS = 120.0;      // ... over at most this much of the sequence, s
+constexpr double kRoomPathClearance = 0.6;  // new room scenarios: box clearance, m
+constexpr double kFurnitureMinSide = 0.4;   // new room scenarios: box footprint side, m
 constexpr double kFurnitureMaxSide = 1.2;
-constexpr double kFurnitureMinHeight = 0.4;   // new room scenarios: box height, m
+constexpr double kFurnitureMinHeight = 0.4;  // new room scenarios: box height, m
 constexpr double kFurnitureMaxHeight = 1.8;
-constexpr double kExploreHalfX = 0.85;        // room_explore: rounded rectangle half extents, m
+constexpr double kExploreHalfX = 0.85;  // room_explore: rounded rectangle half extents, m
 constexpr double kExploreHalfY = 0.55;
-constexpr double kExploreRadius = 0.4;        // room_explore: its corner radius, m
-constexpr double kExploreOutwardRad = 0.7;    // room_explore: view turned 40 deg outwards
-constexpr double kWalkEyeHeight = 1.45;       // walking scenarios: camera height, m
+constexpr double kExploreRadius = 0.4;         // room_explore: its corner radius, m
+constexpr double kExploreOutwardRad = 0.7;     // room_explore: view turned 40 deg outwards
+constexpr double kWalkEyeHeight = 1.45;        // walking scenarios: camera height, m
 constexpr double kCorridorTexelsPerM = 160.0;  // corridor: texture density, texels per metre
-constexpr double kCorridorEndGap = 1.5;       // corridor: turn round this far from the ends, m
-constexpr double kCorridorTurnS = 3.0;        // corridor: duration of the turn round, s
-constexpr double kCorridorWhite = 200.0;      // corridor: grey level of the painted walls
-constexpr double kKidnapLookS = 1.5;          // room_kidnap_unknown: looks round this long, s
-constexpr int kPhotoTilesHall = 4;            // photo textures: tiles per side in the hall
-constexpr int kMinMipSize = 8;           // coarsest texture level, texels per side
-constexpr float kMinObliqueCos = 0.25F;  // obliquity taken into a pixel footprint at most 4x
+constexpr double kCorridorEndGap = 1.5;        // corridor: turn round this far from the ends, m
+constexpr double kCorridorTurnS = 3.0;         // corridor: duration of the turn round, s
+constexpr double kCorridorWhite = 200.0;       // corridor: grey level of the painted walls
+constexpr double kKidnapLookS = 1.5;           // room_kidnap_unknown: looks round this long, s
+constexpr int kPhotoTilesHall = 4;             // photo textures: tiles per side in the hall
+constexpr int kMinMipSize = 8;                 // coarsest texture level, texels per side
+constexpr float kMinObliqueCos = 0.25F;        // obliquity taken into a pixel footprint at most 4x
 
 // Smooth 0 -> 1 ramp over x in [0, 1] with zero slope at both ends (peak slope 1.5).
 double smoothstep(double x) {
@@ -229,7 +229,8 @@ Eigen::Vector2d rounded_rect_point(double s, double hx, double hy, double r, dou
     }
     s -= straight[k];
     if (s < arc || k == 3) {
-      const Eigen::Vector2d centre = start[k] + straight[k] * dir + r * Eigen::Vector2d(-dir.y(), dir.x());
+      const Eigen::Vector2d centre =
+          start[k] + straight[k] * dir + r * Eigen::Vector2d(-dir.y(), dir.x());
       heading = h0 + std::min(s, arc) / r;
       return centre + r * Eigen::Vector2d(std::sin(heading), -std::cos(heading));
     }
@@ -241,8 +242,8 @@ Eigen::Vector2d rounded_rect_point(double s, double hx, double hy, double r, dou
 
 // Camera at `eye` looking along heading (about world z) and pitch (up positive), rad.
 SE3d heading_pose(const Eigen::Vector3d& eye, double heading, double pitch) {
-  const Eigen::Vector3d dir(std::cos(pitch) * std::cos(heading), std::cos(pitch) * std::sin(heading),
-                            std::sin(pitch));
+  const Eigen::Vector3d dir(std::cos(pitch) * std::cos(heading),
+                            std::cos(pitch) * std::sin(heading), std::sin(pitch));
   return look_at(eye, eye + dir, Eigen::Vector3d::UnitZ());
 }
 
@@ -256,8 +257,9 @@ cv::Mat photo_crop(const cv::Mat& photo, int w, int h, double frac, std::mt19937
   const int x0 = static_cast<int>(uniform(rng, 0.0, std::max(0.0, photo.cols - cw)));
   const int y0 = static_cast<int>(uniform(rng, 0.0, std::max(0.0, photo.rows - ch)));
   cv::Mat out;
-  cv::resize(photo(cv::Rect(x0, y0, std::max(1, static_cast<int>(cw)), std::max(1, static_cast<int>(ch)))),
-             out, cv::Size(w, h), 0.0, 0.0, cv::INTER_AREA);
+  cv::resize(
+      photo(cv::Rect(x0, y0, std::max(1, static_cast<int>(cw)), std::max(1, static_cast<int>(ch)))),
+      out, cv::Size(w, h), 0.0, 0.0, cv::INTER_AREA);
   return out;
 }
 
@@ -344,8 +346,8 @@ Status SyntheticCamera::open(std::size_t pool_size) {
   if (corridor) {
     if (!photo) {
       for (std::size_t k = 0; k < textures_.size(); ++k) {
-        std::vector<std::uint8_t> tex = make_texture(texture_size_, kShapesPerWall, kShapeRadiusMin,
-                                                     kShapeRadiusMax, rng);
+        std::vector<std::uint8_t> tex =
+            make_texture(texture_size_, kShapesPerWall, kShapeRadiusMin, kShapeRadiusMax, rng);
         photos.push_back(cv::Mat(texture_size_, texture_size_, CV_8UC1, tex.data()).clone());
       }
     }
@@ -356,11 +358,11 @@ Status SyntheticCamera::open(std::size_t pool_size) {
     for (auto& tex : textures_) {
       tex.w = texture_size_;
       tex.h = texture_size_;
-      tex.levels = make_mips(hall ? make_texture(texture_size_, kHallShapesPerWall,
-                                                 kHallShapeRadiusMin, kHallShapeRadiusMax, rng)
-                                  : make_texture(texture_size_, kShapesPerWall, kShapeRadiusMin,
-                                                 kShapeRadiusMax, rng),
-                             texture_size_);
+      tex.levels = make_mips(
+          hall ? make_texture(texture_size_, kHallShapesPerWall, kHallShapeRadiusMin,
+                              kHallShapeRadiusMax, rng)
+               : make_texture(texture_size_, kShapesPerWall, kShapeRadiusMin, kShapeRadiusMax, rng),
+          texture_size_);
     }
   }
   for (std::size_t k = 0; k < textures_.size(); ++k) {
@@ -706,11 +708,11 @@ SE3d SyntheticCamera::corridor_pose(double t_s) const {
               (1.0 + smoothstep((tau - 2.0 * walk_s - kCorridorTurnS) / kCorridorTurnS));
   }
   const double lateral = std::min(0.15, 0.5 * opts_.corridor_width - 0.5);
-  const Eigen::Vector3d eye(x, lateral * std::sin(kTwoPi * t_s / 9.0),
-                            std::min(1.6, opts_.corridor_height - 0.4) +
-                                0.015 * std::sin(kTwoPi * 1.8 * t_s));
-  const double yaw = heading + 0.3 * std::sin(kTwoPi * t_s / 5.0) +
-                     0.04 * std::sin(kTwoPi * t_s / 1.3);
+  const Eigen::Vector3d eye(
+      x, lateral * std::sin(kTwoPi * t_s / 9.0),
+      std::min(1.6, opts_.corridor_height - 0.4) + 0.015 * std::sin(kTwoPi * 1.8 * t_s));
+  const double yaw =
+      heading + 0.3 * std::sin(kTwoPi * t_s / 5.0) + 0.04 * std::sin(kTwoPi * t_s / 1.3);
   const double pitch = -0.05 + 0.03 * std::sin(kTwoPi * t_s / 3.7);
   return heading_pose(eye, yaw, pitch);
 }
@@ -722,7 +724,8 @@ ScenarioSample SyntheticCamera::kidnap_unknown_sample(double t_s) const {
   // phase 1.
   const double x1 = -0.1 * opts_.room_size_x;
   auto phase1 = [x1](double t) {
-    const Eigen::Vector3d eye(x1 + 0.1 * std::sin(kTwoPi * t / 7.0), 0.45 * std::sin(kTwoPi * t / 8.0),
+    const Eigen::Vector3d eye(x1 + 0.1 * std::sin(kTwoPi * t / 7.0),
+                              0.45 * std::sin(kTwoPi * t / 8.0),
                               1.35 + 0.04 * std::sin(kTwoPi * t / 5.0));
     const double heading = std::numbers::pi + 0.35 * std::sin(kTwoPi * t / 6.0);
     const double pitch = -0.05 + 0.04 * std::sin(kTwoPi * t / 4.4);
@@ -874,8 +877,8 @@ Status SyntheticCamera::list_photos(const SyntheticOptions& opts, std::vector<st
                        "' not found: " + hint);
   }
   std::vector<std::pair<std::string, std::string>> found;  // (file name, path)
-  for (fs::recursive_directory_iterator it(opts.photo_dir,
-                                           fs::directory_options::skip_permission_denied, ec),
+  for (fs::recursive_directory_iterator
+           it(opts.photo_dir, fs::directory_options::skip_permission_denied, ec),
        end;
        !ec && it != end; it.increment(ec)) {
     if (!it->is_regular_file(ec)) continue;
@@ -1222,11 +1225,10 @@ void SyntheticCamera::render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* dep
         const Texture& tex = textures_[static_cast<std::size_t>(hit_box->texture)];
         const float box_texels_per_m =
             static_cast<float>(std::min(tex.w, tex.h) - 1) / box_texture_metres;
-        value = sample(tex,
-                       level_for(d, t, box_texels_per_m, box_axis,
-                                 static_cast<int>(tex.levels.size())),
-                       wrap(p[pa] - hit_box->lo[pa], box_texels_per_m, tex.w),
-                       wrap(p[qa] - hit_box->lo[qa], box_texels_per_m, tex.h));
+        value = sample(
+            tex, level_for(d, t, box_texels_per_m, box_axis, static_cast<int>(tex.levels.size())),
+            wrap(p[pa] - hit_box->lo[pa], box_texels_per_m, tex.w),
+            wrap(p[qa] - hit_box->lo[qa], box_texels_per_m, tex.h));
       } else {
         const int pa = axis == 0 ? 1 : 0;
         const int qa = axis == 2 ? 1 : 2;
@@ -1236,10 +1238,10 @@ void SyntheticCamera::render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* dep
         const float tmax_v = static_cast<float>(tex.h - 1) - 1e-3F;
         const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax_u;
         const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax_v;
-        value = sample(tex,
-                       level_for(d, t, wall_texels_per_m_[wall], axis,
-                                 static_cast<int>(tex.levels.size())),
-                       fu, fv);
+        value = sample(
+            tex,
+            level_for(d, t, wall_texels_per_m_[wall], axis, static_cast<int>(tex.levels.size())),
+            fu, fv);
       }
       value *= gain;
       if (noisy) {
@@ -1260,8 +1262,8 @@ double SyntheticCamera::gain_at(double t_s) const {
     const auto steps = static_cast<std::int64_t>(std::floor(t_s / opts_.exposure_step_every_s));
     int level = 0;
     for (std::int64_t i = 1; i <= steps; ++i) {
-      const std::uint64_t key = (static_cast<std::uint64_t>(opts_.seed) << 32U) ^
-                                static_cast<std::uint64_t>(i);
+      const std::uint64_t key =
+          (static_cast<std::uint64_t>(opts_.seed) << 32U) ^ static_cast<std::uint64_t>(i);
       int d = (mix64(key) & 1U) != 0U ? 1 : -1;
       if (std::abs(level + d) > 2) d = -d;
       level += d;
@@ -1285,8 +1287,8 @@ void SyntheticCamera::render_blurred(double t_s, Frame& f, float gain) {
     const ScenarioSample s = sample_at(t_k);
     if (!s.visible) continue;  // lens covered for part of the exposure: adds black
     const bool middle = odd && k == k_samples / 2;
-    render_impl(middle ? f.T_w_c_gt : s.T_w_c, blur_scratch_, (depth && middle) ? &f.depth : nullptr,
-                0, gain, false);
+    render_impl(middle ? f.T_w_c_gt : s.T_w_c, blur_scratch_,
+                (depth && middle) ? &f.depth : nullptr, 0, gain, false);
     std::uint16_t* sum = blur_sum_.data();
     for (int v = 0; v < blur_scratch_.rows; ++v) {
       const std::uint8_t* row = blur_scratch_.ptr<std::uint8_t>(v);

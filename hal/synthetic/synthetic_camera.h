@@ -63,24 +63,24 @@ struct SyntheticOptions {
   std::string texture = "auto";     ///< auto | procedural | photo (kSyntheticTextures)
   std::string photo_dir{kDefaultPhotoDir};  ///< photo textures: folder searched for *.jpg
   std::string photo_set = "all";            ///< photo textures: all | dev | heldout
-  double exposure_time_s = 0.0;     ///< motion blur: exposure time, s (0: no blur)
-  int blur_samples = 5;             ///< motion blur: renders averaged over the exposure
-  double exposure_step_every_s = 0.0;  ///< exposure steps: one gain jump every this many s (0: none)
+  double exposure_time_s = 0.0;             ///< motion blur: exposure time, s (0: no blur)
+  int blur_samples = 5;                     ///< motion blur: renders averaged over the exposure
+  double exposure_step_every_s = 0.0;  ///< exposure steps: a gain jump every this many s (0: off)
   double exposure_step_size = 0.25;    ///< exposure steps: each jump scales the gain by 1 +- this
-  double turn_angle_deg = 95.0;     ///< hall_turn: the first turn (left), degrees
-  double turn_duration_s = 4.0;     ///< hall_turn: duration of each turn, s
-  double turn_speed_mps = 3.5;      ///< hall_turn: speed through the turns, m/s
-  double walk_speed_mps = 0.25;     ///< room_explore: walking speed, m/s
-  double sweep_yaw_deg = 40.0;      ///< room_rotation: yaw sweep amplitude, degrees
-  double sweep_pitch_deg = 15.0;    ///< room_rotation: pitch sweep amplitude, degrees
-  double sweep_period_s = 6.0;      ///< room_rotation: period of the yaw sweep, s
-  double sweep_translation_m = 0.03;  ///< room_rotation: hand translation amplitude, m
-  double corridor_length = 24.0;    ///< corridor: length, m
-  double corridor_width = 2.0;      ///< corridor: width, m
-  double corridor_height = 2.5;     ///< corridor: height, m
-  double corridor_speed_mps = 1.0;  ///< corridor: walking speed, m/s
-  double corridor_contrast = 0.12;  ///< corridor: photo contrast kept on the white walls (0..1)
-  double kidnap_return_s = 6.0;     ///< room_kidnap_unknown: walk back to the mapped part, s
+  double turn_angle_deg = 95.0;        ///< hall_turn: the first turn (left), degrees
+  double turn_duration_s = 4.0;        ///< hall_turn: duration of each turn, s
+  double turn_speed_mps = 3.5;         ///< hall_turn: speed through the turns, m/s
+  double walk_speed_mps = 0.25;        ///< room_explore: walking speed, m/s
+  double sweep_yaw_deg = 40.0;         ///< room_rotation: yaw sweep amplitude, degrees
+  double sweep_pitch_deg = 15.0;       ///< room_rotation: pitch sweep amplitude, degrees
+  double sweep_period_s = 6.0;         ///< room_rotation: period of the yaw sweep, s
+  double sweep_translation_m = 0.03;   ///< room_rotation: hand translation amplitude, m
+  double corridor_length = 24.0;       ///< corridor: length, m
+  double corridor_width = 2.0;         ///< corridor: width, m
+  double corridor_height = 2.5;        ///< corridor: height, m
+  double corridor_speed_mps = 1.0;     ///< corridor: walking speed, m/s
+  double corridor_contrast = 0.12;     ///< corridor: photo contrast kept on the white walls (0..1)
+  double kidnap_return_s = 6.0;        ///< room_kidnap_unknown: walk back to the mapped part, s
 
   template <class V>
   void visit(V& v) {
@@ -345,10 +345,10 @@ class SyntheticCamera final : public CameraSource {
   bool use_mips_ = false;                     // pick a texture level per pixel (hall_drive only)
   std::array<float, 6> wall_texels_per_m_{};  // per wall: level-0 texels per metre (max of axes)
   std::vector<SceneBox> boxes_;
-  std::array<float, 3> room_lo_{};   // scene box minimum corner, world, m
-  std::array<float, 3> room_hi_{};   // scene box maximum corner, world, m
-  float box_texture_metres_ = 1.0F;  // one texture tile spans this many metres on a box face
-  std::vector<std::int8_t> noise_;   // precomputed noise table
+  std::array<float, 3> room_lo_{};        // scene box minimum corner, world, m
+  std::array<float, 3> room_hi_{};        // scene box maximum corner, world, m
+  float box_texture_metres_ = 1.0F;       // one texture tile spans this many metres on a box face
+  std::vector<std::int8_t> noise_;        // precomputed noise table
   std::vector<std::string> photo_files_;  // photo per wall (photo textures)
   std::vector<PathPoint> turn_path_;      // hall_turn: tabulated path, world
   double turn_path_end_s_ = 0.0;          // hall_turn: the car stops here, s

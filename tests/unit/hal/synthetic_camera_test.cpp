@@ -330,10 +330,10 @@ bool have_photos() {
   return std::filesystem::is_directory(kDefaultPhotoDir);
 }
 
-#define SKIP_WITHOUT_PHOTOS()                                                              \
-  if (!have_photos()) {                                                                    \
+#define SKIP_WITHOUT_PHOTOS()                                                            \
+  if (!have_photos()) {                                                                  \
     GTEST_SKIP() << kDefaultPhotoDir << " is missing: apt-get install " << kPhotoPackage \
-                 << " (tools/dev.sh setup installs it)";                                   \
+                 << " (tools/dev.sh setup installs it)";                                 \
   }
 
 std::uint64_t fnv1a(const cv::Mat& m) {
@@ -508,7 +508,7 @@ TEST(SyntheticCamera, RoomExploreWalksOutAndReturnsThroughItsStart) {
   ASSERT_TRUE(cam.open(2).is_ok());
   EXPECT_EQ(cam.boxes().size(), 16U);
   const SE3d start = cam.sample_at(0.0).T_w_c;
-  double closest_late = 1e9;   // closest approach to the start after 15 s
+  double closest_late = 1e9;  // closest approach to the start after 15 s
   double farthest = 0.0;
   double max_view_change = 0.0;  // largest heading difference from the start view
   double turned = 0.0;
@@ -552,7 +552,8 @@ TEST(SyntheticCamera, RoomRotationIsRotationDominantFromTheFirstFrame) {
   // while moving under 3 mm.
   const SE3d f1 = cam.sample_at(1.0 / 30.0).T_w_c;
   const double rot_deg =
-      Eigen::Quaterniond(start.linear()).angularDistance(Eigen::Quaterniond(f1.linear())) * 180.0 / kPi;
+      Eigen::Quaterniond(start.linear()).angularDistance(Eigen::Quaterniond(f1.linear())) * 180.0 /
+      kPi;
   EXPECT_GT(rot_deg, 1.0);
   EXPECT_LT((f1.translation() - start.translation()).norm(), 0.003);
 }
@@ -632,7 +633,8 @@ TEST(SyntheticCamera, KidnapUnknownReappearsWhereNothingWasSeen) {
   for (int v = 0; v < o.height; v += 6) {
     for (int u = 0; u < o.width; u += 6) {
       const double z = reappear_depth.at<float>(v, u);
-      const Eigen::Vector3d p_w = reappear * Eigen::Vector3d((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+      const Eigen::Vector3d p_w =
+          reappear * Eigen::Vector3d((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
       ++total;
       for (std::size_t k = 0; k < poses.size(); ++k) {
         const Eigen::Vector3d p_c = poses[k].inverse() * p_w;
@@ -738,7 +740,8 @@ TEST(SyntheticCamera, NewScenariosAreDeterministicAndAllocationFree) {
         EXPECT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
         last = f->gray;  // shares the pool buffer: no allocation
         if (i > 0) {
-          EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U) << scenario << " frame " << i;
+          EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U)
+              << scenario << " frame " << i;
         }
         last = last.clone();
       }
