@@ -5,7 +5,7 @@
 /// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
 
 #include "backend/local_ba.h"
-#include "backend/loop_closer.h"
+#include "loop/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/options.h"
 #include "depth/depth_options.h"
@@ -25,7 +25,7 @@ struct SlamConfig {
   depth::DepthOptions depth;
   backend::LocalBaOptions backend;
   backend::CullingOptions culling;
-  backend::LoopOptions loop;
+  mer::loop::LoopOptions loop;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;

@@ -46,8 +46,11 @@
 #include "map/map.h"
 
 namespace mer::backend {
-
 class LocalBundleAdjuster;
+}  // namespace mer::backend
+
+namespace mer::loop {
+
 
 /// Retrieval keys: kKeyTables fixed subsets of kKeyBits descriptor bits each. Two views of
 /// one point usually differ in 10-20 % of their bits, so a 16-bit subset is often the same,
@@ -188,7 +191,7 @@ class LoopCloser {
   /// `metric`: the map has a known scale (RGB-D): loops are rigid. `ba` runs the full-graph
   /// optimization after a loop (may be null: none).
   LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2, bool metric,
-             LocalBundleAdjuster* ba);
+             backend::LocalBundleAdjuster* ba);
 
   /// Looks for a loop closing at keyframe kf and corrects the map when one is found. Takes the
   /// map's writer lock itself.
@@ -271,7 +274,7 @@ class LoopCloser {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   bool metric_;
-  LocalBundleAdjuster* ba_;
+  backend::LocalBundleAdjuster* ba_;
   /// Retrieval keys of a keyframe slot's occupant (sorted per table), made on first use.
   struct KeyframeKeys {
     map::Generation generation = map::kNoGeneration;
@@ -295,4 +298,4 @@ class LoopCloser {
   LoopTotals totals_;
 };
 
-}  // namespace mer::backend
+}  // namespace mer::loop

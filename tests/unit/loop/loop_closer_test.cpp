@@ -1,7 +1,7 @@
 // Loop closure: retrieval keys (each table reads its own bits of the descriptor, so a bit no
 // table uses changes no key and a bit one table uses changes that table's key only), and the
 // geometric check's guided search on a map whose loop keyframe sees repeated texture.
-#include "backend/loop_closer.h"
+#include "loop/loop_closer.h"
 
 #include <cmath>
 #include <cstdio>
@@ -13,7 +13,7 @@
 #include "map/map.h"
 #include "support/doc_check.h"
 
-namespace mer::backend {
+namespace mer::loop {
 namespace {
 
 TEST(LoopCloserKeys, EachTableReadsItsOwnBits) {
@@ -228,4 +228,4 @@ TEST(LoopCloser, ReprojectionRefinementRecoversTheLoopSimilarity) {
 }
 
 }  // namespace
-}  // namespace mer::backend
+}  // namespace mer::loop

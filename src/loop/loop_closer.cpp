@@ -1,4 +1,4 @@
-#include "backend/loop_closer.h"
+#include "loop/loop_closer.h"
 
 #include <algorithm>
 #include <chrono>
@@ -14,7 +14,7 @@
 #include "geometry/random.h"
 #include "platform/log_ring.h"
 
-namespace mer::backend {
+namespace mer::loop {
 
 namespace {
 
@@ -169,7 +169,7 @@ std::array<std::uint16_t, kKeyTables> descriptor_keys(const features::Descriptor
 }
 
 LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2,
-                       bool metric, LocalBundleAdjuster* ba)
+                       bool metric, backend::LocalBundleAdjuster* ba)
     : opts_(opts),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
@@ -1024,4 +1024,4 @@ int LoopCloser::fuse_loop(const std::vector<map::KeyframeId>& window,
   return merged;
 }
 
-}  // namespace mer::backend
+}  // namespace mer::loop
