@@ -27,12 +27,58 @@ KeyframeDatabase::KeyframeDatabase(const map::Map& map)
       per_table_(static_cast<std::size_t>(map.options().max_keypoints_per_keyframe)),
       slots_(static_cast<std::size_t>(map.options().max_keyframes)),
       key_(slots_.size() * kKeyTables * per_table_, 0),
-      next_(key_.size(), kNone),
       head_(static_cast<std::size_t>(kKeyTables) << static_cast<unsigned>(kKeyBits), kNone),
       frequency_(head_.size(), 0U),
       query_keys_(kKeyTables * per_table_, 0),
       scores_(slots_.size(), 0.0) {
-  MER_ASSERT(key_.size() < kNone, "keyframe database: too many posting entries for 32-bit links");
+  MER_ASSERT(slots_.size() <= 0xffffU, "keyframe database: slot ids are 16-bit");
+  // Every list has at most one block that is not full: entries / kBlockIds + one per key.
+  const std::size_t nblocks = key_.size() / kBlockIds + std::min(key_.size(), head_.size()) + 1;
+  MER_ASSERT(nblocks < kNone, "keyframe database: too many posting blocks for 32-bit links");
+  blocks_.resize(nblocks);
+  for (std::size_t b = 0; b < nblocks; ++b) {
+    blocks_[b].next = b + 1 < nblocks ? static_cast<std::uint32_t>(b + 1) : kNone;
+  }
+  free_block_ = 0;
+}
+
+void KeyframeDatabase::post(std::size_t h, std::uint16_t slot) {
+  std::uint32_t b = head_[h];
+  if (b == kNone || blocks_[b].count == kBlockIds) {
+    MER_ASSERT(free_block_ != kNone, "keyframe database: posting blocks exhausted");
+    const std::uint32_t nb = free_block_;
+    free_block_ = blocks_[nb].next;
+    blocks_[nb].next = b;
+    blocks_[nb].count = 0;
+    head_[h] = nb;
+    b = nb;
+  }
+  Block& blk = blocks_[b];
+  blk.id[blk.count++] = slot;
+  ++frequency_[h];
+}
+
+void KeyframeDatabase::unpost(std::size_t h, std::uint16_t slot) {
+  // Removal is rare (a slot reused or removed): find the slot, fill its place with the head
+  // block's last id (only the head block may be partly filled), free an emptied head.
+  const std::uint32_t hb = head_[h];
+  MER_ASSERT(hb != kNone, "keyframe database: removing from an empty posting list");
+  for (std::uint32_t b = hb; b != kNone; b = blocks_[b].next) {
+    Block& blk = blocks_[b];
+    for (std::uint16_t i = 0; i < blk.count; ++i) {
+      if (blk.id[i] != slot) continue;
+      Block& head = blocks_[hb];
+      blk.id[i] = head.id[--head.count];
+      if (head.count == 0) {
+        head_[h] = head.next;
+        head.next = free_block_;
+        free_block_ = hb;
+      }
+      --frequency_[h];
+      return;
+    }
+  }
+  MER_ASSERT(false, "keyframe database: posting entry missing from its list");
 }
 
 bool KeyframeDatabase::refresh(map::KeyframeId kf) {
@@ -52,14 +98,7 @@ bool KeyframeDatabase::refresh(map::KeyframeId kf) {
     std::sort(k, k + n);
     const auto count = static_cast<std::uint32_t>(std::unique(k, k + n) - k);
     s.count[static_cast<std::size_t>(t)] = count;
-    const std::size_t e0 = entry(kf, t);
-    for (std::uint32_t i = 0; i < count; ++i) {
-      const std::size_t h = index(t, k[i]);
-      const auto e = static_cast<std::uint32_t>(e0 + i);
-      next_[e] = head_[h];
-      head_[h] = e;
-      ++frequency_[h];
-    }
+    for (std::uint32_t i = 0; i < count; ++i) post(index(t, k[i]), static_cast<std::uint16_t>(kf));
   }
   s.generation = gen;
   ++keyed_;
@@ -80,20 +119,9 @@ void KeyframeDatabase::remove(map::KeyframeId kf) {
   Slot& s = slots_[kf];
   if (s.generation == map::kNoGeneration) return;
   for (int t = 0; t < kKeyTables; ++t) {
-    const std::size_t e0 = entry(kf, t);
+    const std::uint16_t* k = key_.data() + entry(kf, t);
     for (std::uint32_t i = 0; i < s.count[static_cast<std::size_t>(t)]; ++i) {
-      const auto e = static_cast<std::uint32_t>(e0 + i);
-      const std::size_t h = index(t, key_[e]);
-      // Unlink e: posting lists are short (keyframes with that key), and removal is rare
-      // (a slot reused), so a singly linked list walked from its head is enough.
-      std::uint32_t* link = &head_[h];
-      while (*link != e) {
-        MER_ASSERT(*link != kNone, "keyframe database: posting entry missing from its list");
-        link = &next_[*link];
-      }
-      *link = next_[e];
-      next_[e] = kNone;
-      --frequency_[h];
+      unpost(index(t, k[i]), static_cast<std::uint16_t>(kf));
     }
     s.count[static_cast<std::size_t>(t)] = 0;
   }
@@ -118,14 +146,16 @@ std::span<const double> KeyframeDatabase::accumulate(
   // the same order, as a merge of the two sorted key lists (what loop closure computed
   // before the index), so the scores are bit-identical to that.
   const double n = std::max(1.0, static_cast<double>(keyed_));
-  const std::size_t per_slot = kKeyTables * per_table_;
   for (int t = 0; t < kKeyTables; ++t) {
     for (const std::uint16_t key : keys[static_cast<std::size_t>(t)]) {
       const std::size_t h = index(t, key);
-      std::uint32_t e = head_[h];
-      if (e == kNone) continue;
+      std::uint32_t b = head_[h];
+      if (b == kNone) continue;
       const double w = std::log(n / std::max(1.0, static_cast<double>(frequency_[h])));
-      for (; e != kNone; e = next_[e]) scores_[e / per_slot] += w;
+      for (; b != kNone; b = blocks_[b].next) {
+        const Block& blk = blocks_[b];
+        for (std::uint16_t i = 0; i < blk.count; ++i) scores_[blk.id[i]] += w;
+      }
     }
   }
   return scores_;
