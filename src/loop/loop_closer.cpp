@@ -12,6 +12,7 @@
 
 #include "backend/local_ba.h"
 #include "geometry/random.h"
+#include "loop/descriptor_match.h"
 #include "platform/log_ring.h"
 
 namespace mer::loop {
@@ -428,23 +429,12 @@ int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
   for (std::uint32_t i = 0; i < n_new; ++i) {
     const map::PointId p = map_.keyframe_point(kf, i);
     if (p == map::kNoId || map_.point_is_bad(p)) continue;
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    std::size_t best_k = 0;
-    for (std::size_t k = 0; k < old_pts.size(); ++k) {
-      const int d = features::hamming(descs_new[i], old_pts[k].desc);
-      if (d < best) {
-        second = best;
-        best = d;
-        best_k = k;
-      } else if (d < second) {
-        second = d;
-      }
-    }
-    if (best > opts_.max_descriptor_distance ||
-        static_cast<double>(best) > opts_.ratio * static_cast<double>(second)) {
-      continue;
-    }
+    const NearestTwo nn = nearest_two(
+        descs_new[i],
+        old_pts.size(), [&](std::size_t k) -> const auto& { return old_pts[k].desc; });
+    if (!nn.passes(opts_.max_descriptor_distance, opts_.ratio)) continue;
+    const int best = nn.best;
+    const std::size_t best_k = nn.index;
     if (old_pts[best_k].p == p) continue;  // already one point: nothing to close
     auto& [dist, idx] = taken[best_k];
     if (best >= dist) continue;

@@ -7,6 +7,8 @@
 
 #include <Eigen/Geometry>
 
+#include "loop/descriptor_match.h"
+
 namespace mer::loop {
 
 namespace {
@@ -154,29 +156,20 @@ int Relocalizer::match_descriptors(const RelocQuery& q, std::size_t n) {
   std::fill_n(kp_point_.begin(), n_kp, -1);
   // Per point, the nearest frame keypoint (ratio test); per keypoint, the nearest such point.
   for (std::size_t i = 0; i < n; ++i) {
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    std::size_t best_k = 0;
-    for (std::size_t k = 0; k < n_kp; ++k) {
-      const int d = features::hamming(pts_desc_[i], q.descriptors[k]);
-      if (d < best) {
-        second = best;
-        best = d;
-        best_k = k;
-      } else if (d < second) {
-        second = d;
-      }
-    }
-    if (best > opts_.max_descriptor_distance ||
-        static_cast<double>(best) > opts_.ratio * static_cast<double>(second) ||
-        best >= kp_best_[best_k]) {
+    const NearestTwo nn = nearest_two(
+        pts_desc_[i], n_kp, [&](std::size_t k) -> const auto& { return q.descriptors[k]; });
+    if (!nn.passes(opts_.max_descriptor_distance, opts_.ratio) || nn.best >= kp_best_[nn.index]) {
       continue;
     }
-    kp_best_[best_k] = best;
-    kp_point_[best_k] = static_cast<std::int32_t>(i);
+    kp_best_[nn.index] = nn.best;
+    kp_point_[nn.index] = static_cast<std::int32_t>(i);
   }
+  return collect_correspondences(q);
+}
+
+int Relocalizer::collect_correspondences(const RelocQuery& q) {
   int m = 0;
-  for (std::size_t k = 0; k < n_kp; ++k) {
+  for (std::size_t k = 0; k < q.keypoints.size(); ++k) {
     if (kp_point_[k] < 0) continue;
     const auto mi = static_cast<std::size_t>(m++);
     const features::Keypoint& kp = q.keypoints[k];
@@ -263,16 +256,7 @@ int Relocalizer::match_projection(const RelocQuery& q, std::size_t n, const SE3d
     kp_best_[best_k] = best;
     kp_point_[best_k] = static_cast<std::int32_t>(i);
   }
-  int m = 0;
-  for (std::size_t k = 0; k < n_kp; ++k) {
-    if (kp_point_[k] < 0) continue;
-    const auto mi = static_cast<std::size_t>(m++);
-    const features::Keypoint& kp = q.keypoints[k];
-    corr_X_[mi] = pts_p_w_[static_cast<std::size_t>(kp_point_[k])];
-    corr_uv_[mi] = Eigen::Vector2d(kp.x, kp.y);
-    corr_sigma_[mi] = kp.scale > 0.0F ? kp.scale : 1.0F;
-  }
-  return m;
+  return collect_correspondences(q);
 }
 
 int Relocalizer::refine(const RelocQuery& q, int m, SE3d& T_c_w) {

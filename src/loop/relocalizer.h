@@ -158,6 +158,8 @@ class Relocalizer {
   int match_descriptors(const RelocQuery& q, std::size_t n);
   /// Projection matches of pts_[0, n) under T_c_w: fills corr_*; returns the count.
   int match_projection(const RelocQuery& q, std::size_t n, const SE3d& T_c_w);
+  /// Correspondences corr_* from kp_point_ (keypoint -> point index); returns the count.
+  int collect_correspondences(const RelocQuery& q);
   /// Refines T_c_w on corr_[0, m) (two robust passes); returns the inliers.
   int refine(const RelocQuery& q, int m, SE3d& T_c_w);
   /// Keypoint grid of the frame for the projection search.
