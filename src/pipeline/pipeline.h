@@ -37,7 +37,6 @@
 
 #include "backend/groundtruth_check.h"
 #include "backend/local_ba.h"
-#include "loop/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/status.h"
 #include "depth/depth_map_source.h"
@@ -45,6 +44,7 @@
 #include "depth/keyframe_builder.h"
 #include "frontend/tracker.h"
 #include "hal/camera.h"
+#include "loop/loop_closer.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
 #include "pipeline/final_trajectory.h"
@@ -137,7 +137,7 @@ struct PipelineStats {
   depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
   backend::CullingTotals culling;            ///< map culling totals
-  mer::loop::LoopTotals loop;                  ///< loop closure totals
+  mer::loop::LoopTotals loop;                ///< loop closure totals
   map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
