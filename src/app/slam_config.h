@@ -5,12 +5,12 @@
 /// after each step. `mer_slam --print-config` prints it as commented YAML that loads back.
 
 #include "backend/local_ba.h"
-#include "backend/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/options.h"
 #include "depth/depth_options.h"
 #include "frontend/tracking_options.h"
 #include "hal/camera_factory.h"
+#include "loop/loop_closer.h"
 #include "map/map.h"
 #include "pipeline/pipeline_options.h"
 
@@ -25,7 +25,7 @@ struct SlamConfig {
   depth::DepthOptions depth;
   backend::LocalBaOptions backend;
   backend::CullingOptions culling;
-  backend::LoopOptions loop;
+  mer::loop::LoopOptions loop;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;

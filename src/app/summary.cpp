@@ -229,7 +229,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"new_keyframe_shift\": " << num(ba.new_keyframe_runs ? ba.sum_shift_fraction / nk : 0.0)
     << ", \"new_keyframe_turn_deg\": " << num(ba.new_keyframe_runs ? ba.sum_rotation_deg / nk : 0.0)
     << "},\n";
-  const backend::LoopTotals& lp = st.loop;
+  const loop::LoopTotals& lp = st.loop;
   j << "  \"loop\": {\"keyframes_checked\": " << lp.keyframes_checked
     << ", \"candidates_checked\": " << lp.candidates_checked
     << ", \"loops_closed\": " << lp.loops_closed << ", \"merged_points\": " << lp.merged_points

@@ -141,8 +141,8 @@ Status Pipeline::init(const std::string& output_dir) {
       builder_->metric_map_depth());
   culler_ =
       std::make_unique<backend::MapCuller>(config_.culling, *map_, builder_->metric_map_depth());
-  loop_ = std::make_unique<backend::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
-                                                builder_->metric_map_depth(), ba_.get());
+  loop_ = std::make_unique<loop::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
+                                             builder_->metric_map_depth(), ba_.get());
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;

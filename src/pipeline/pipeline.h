@@ -37,7 +37,6 @@
 
 #include "backend/groundtruth_check.h"
 #include "backend/local_ba.h"
-#include "backend/loop_closer.h"
 #include "backend/map_culling.h"
 #include "core/status.h"
 #include "depth/depth_map_source.h"
@@ -45,6 +44,7 @@
 #include "depth/keyframe_builder.h"
 #include "frontend/tracker.h"
 #include "hal/camera.h"
+#include "loop/loop_closer.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
 #include "pipeline/final_trajectory.h"
@@ -77,7 +77,7 @@ struct PipelineConfig {
   backend::LocalBaOptions backend;
   hal::CameraIntrinsics intrinsics;  ///< calibration in use (source's, or the override)
   backend::CullingOptions culling;
-  backend::LoopOptions loop;
+  mer::loop::LoopOptions loop;
 };
 
 /// Latency of one stage, summarized.
@@ -137,7 +137,7 @@ struct PipelineStats {
   depth::KeyframeBuildTotals mapping;        ///< keyframe creation totals
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
   backend::CullingTotals culling;            ///< map culling totals
-  backend::LoopTotals loop;                  ///< loop closure totals
+  mer::loop::LoopTotals loop;                ///< loop closure totals
   map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
@@ -209,7 +209,7 @@ class Pipeline {
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   std::unique_ptr<backend::MapCuller> culler_;
-  std::unique_ptr<backend::LoopCloser> loop_;
+  std::unique_ptr<loop::LoopCloser> loop_;
   /// Lockstep keyframe creation: build_keyframe, then optimize_and_cull.
   void create_keyframe(const map::KeyframeJob& job);
   /// The keyframe builder (depth inference + insertion; latency `keyframe`).

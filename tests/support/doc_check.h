@@ -22,6 +22,12 @@ struct DocCheck {
       EXPECT_TRUE((std::is_same_v<C, options::Range<T>>)) << key << " has no range";
     }
   }
+  /// A nested options struct: its fields are counted too.
+  template <typename S>
+  void section(std::string_view key, S& sub, std::string_view doc) {
+    EXPECT_FALSE(doc.empty()) << key;
+    sub.visit(*this);
+  }
 };
 
 }  // namespace mer::testing

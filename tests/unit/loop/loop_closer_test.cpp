@@ -1,7 +1,7 @@
 // Loop closure: retrieval keys (each table reads its own bits of the descriptor, so a bit no
 // table uses changes no key and a bit one table uses changes that table's key only), and the
 // geometric check's guided search on a map whose loop keyframe sees repeated texture.
-#include "backend/loop_closer.h"
+#include "loop/loop_closer.h"
 
 #include <cmath>
 #include <cstdio>
@@ -12,8 +12,9 @@
 
 #include "map/map.h"
 #include "support/doc_check.h"
+#include "synthetic_map.h"
 
-namespace mer::backend {
+namespace mer::loop {
 namespace {
 
 TEST(LoopCloserKeys, EachTableReadsItsOwnBits) {
@@ -131,30 +132,11 @@ struct LoopScene {
     }
   }
 
-  // A keyframe whose keypoints are pts seen from T_true, stored with pose T_stored.
   map::KeyframeId add_view(const SE3d& T_true, const SE3d& T_stored,
                            const std::vector<Eigen::Vector3d>& pts,
                            const std::vector<features::Descriptor>& desc, std::uint64_t seq,
                            std::uint64_t t) {
-    std::vector<features::Keypoint> kps;
-    for (const Eigen::Vector3d& p : pts) {
-      const Eigen::Vector2d uv = K.project(T_true.inverse() * p);
-      features::Keypoint k;
-      k.x = static_cast<float>(uv.x());
-      k.y = static_cast<float>(uv.y());
-      k.level = 0;
-      k.scale = 1.0F;
-      kps.push_back(k);
-    }
-    map::KeyframeInput in;
-    in.seq = seq;
-    in.t_ns = static_cast<std::int64_t>(t) * 1000000;
-    in.T_w_c = T_stored;
-    in.keypoints = kps;
-    in.descriptors = desc;
-    const Result<map::KeyframeId> r = map.add_keyframe(in);
-    EXPECT_TRUE(r.is_ok()) << r.status().message();
-    return r.is_ok() ? r.value() : map::kNoId;
+    return scene::add_view(map, K, T_true, T_stored, pts, desc, seq, t);
   }
 };
 
@@ -228,4 +210,4 @@ TEST(LoopCloser, ReprojectionRefinementRecoversTheLoopSimilarity) {
 }
 
 }  // namespace
-}  // namespace mer::backend
+}  // namespace mer::loop

@@ -5,8 +5,9 @@
 /// similarity between the new keyframe and the old one. The loop closer finds it and spreads
 /// it over the keyframes of the loop.
 ///
-///  1. Retrieval: every keyframe's descriptors give sorted keys (kKeyTables subsets of
-///     kKeyBits bits, as in locality-sensitive hashing). Candidates for a new keyframe are the
+///  1. Retrieval (KeyframeDatabase, keyframe_database.h): every keyframe's descriptors give
+///     sorted keys (kKeyTables subsets of kKeyBits bits, as in locality-sensitive hashing),
+///     indexed key -> keyframes. Candidates for a new keyframe are the
 ///     keyframes at least `min_keyframe_gap` keyframes older: those it already shares points
 ///     with (tracking found their points again) first, then those whose score (shared keys,
 ///     each weighted by log(keyframes / keyframes with the key)) is at least
@@ -43,20 +44,14 @@
 #include "core/options.h"
 #include "geometry/camera_model.h"
 #include "geometry/sim3.h"
+#include "loop/keyframe_database.h"
 #include "map/map.h"
 
 namespace mer::backend {
-
 class LocalBundleAdjuster;
+}  // namespace mer::backend
 
-/// Retrieval keys: kKeyTables fixed subsets of kKeyBits descriptor bits each. Two views of
-/// one point usually differ in 10-20 % of their bits, so a 16-bit subset is often the same,
-/// while unrelated descriptors share one by chance 1 in 65536 times.
-inline constexpr int kKeyTables = 4;
-inline constexpr int kKeyBits = 16;
-
-/// The keys of a descriptor, one per table.
-std::array<std::uint16_t, kKeyTables> descriptor_keys(const features::Descriptor& d);
+namespace mer::loop {
 
 /// Options of loop closure (config section `loop`).
 struct LoopOptions {
@@ -188,13 +183,17 @@ class LoopCloser {
   /// `metric`: the map has a known scale (RGB-D): loops are rigid. `ba` runs the full-graph
   /// optimization after a loop (may be null: none).
   LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2, bool metric,
-             LocalBundleAdjuster* ba);
+             backend::LocalBundleAdjuster* ba);
 
   /// Looks for a loop closing at keyframe kf and corrects the map when one is found. Takes the
   /// map's writer lock itself.
   LoopReport spin_once(map::KeyframeId kf, const geometry::Pinhole& K);
 
   const LoopTotals& totals() const { return totals_; }
+
+  /// The keyframe database retrieval uses (refreshed by spin_once under the writer lock).
+  /// Lockstep callers may share it with a Relocalizer; threaded ones give that its own.
+  KeyframeDatabase& database() { return db_; }
 
  private:
   struct Match {
@@ -271,19 +270,8 @@ class LoopCloser {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   bool metric_;
-  LocalBundleAdjuster* ba_;
-  /// Retrieval keys of a keyframe slot's occupant (sorted per table), made on first use.
-  struct KeyframeKeys {
-    map::Generation generation = map::kNoGeneration;
-    std::array<std::vector<std::uint16_t>, kKeyTables> keys;
-  };
-  const KeyframeKeys& keys_of(map::KeyframeId kf);
-  /// Sum over the distinct keys a and b share of the key's inverse keyframe frequency
-  /// log(keyframes / keyframes with the key): keys every keyframe has count for nothing.
-  double shared_keys(const KeyframeKeys& a, const KeyframeKeys& b) const;
-  std::vector<KeyframeKeys> keys_;
-  std::vector<std::uint32_t> key_frequency_;  // per table and key: keyframes keyed with it
-  std::uint32_t keyed_keyframes_ = 0;
+  backend::LocalBundleAdjuster* ba_;
+  KeyframeDatabase db_;
   std::uint64_t last_loop_serial_ = 0;
   bool any_loop_ = false;
   std::uint32_t rng_ = 1;
@@ -295,4 +283,4 @@ class LoopCloser {
   LoopTotals totals_;
 };
 
-}  // namespace mer::backend
+}  // namespace mer::loop

@@ -1,4 +1,4 @@
-#include "backend/loop_closer.h"
+#include "loop/loop_closer.h"
 
 #include <algorithm>
 #include <chrono>
@@ -12,9 +12,10 @@
 
 #include "backend/local_ba.h"
 #include "geometry/random.h"
+#include "loop/descriptor_match.h"
 #include "platform/log_ring.h"
 
-namespace mer::backend {
+namespace mer::loop {
 
 namespace {
 
@@ -153,30 +154,14 @@ struct GraphNode {
 
 }  // namespace
 
-std::array<std::uint16_t, kKeyTables> descriptor_keys(const features::Descriptor& d) {
-  // Table t takes bits t, t + 4, t + 8, ... of a 64-bit word, a different word per table
-  // group: spread over the descriptor, no bit used twice.
-  std::array<std::uint16_t, kKeyTables> out{};
-  for (int t = 0; t < kKeyTables; ++t) {
-    const std::uint64_t w = d[static_cast<std::size_t>(t) % d.size()];
-    std::uint16_t k = 0;
-    for (int i = 0; i < kKeyBits; ++i) {
-      k = static_cast<std::uint16_t>((k << 1U) | ((w >> static_cast<unsigned>(i * 4 + t)) & 1U));
-    }
-    out[static_cast<std::size_t>(t)] = k;
-  }
-  return out;
-}
-
 LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2,
-                       bool metric, LocalBundleAdjuster* ba)
+                       bool metric, backend::LocalBundleAdjuster* ba)
     : opts_(opts),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
       metric_(metric),
       ba_(ba),
-      keys_(static_cast<std::size_t>(map.options().max_keyframes)),
-      key_frequency_(static_cast<std::size_t>(kKeyTables) << static_cast<unsigned>(kKeyBits), 0U),
+      db_(map),
       rng_(static_cast<std::uint32_t>(opts.seed)) {
   const auto nk = static_cast<std::size_t>(map.options().max_keypoints_per_keyframe);
   matches_.reserve(nk);
@@ -188,63 +173,6 @@ LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float
   x_old_.reserve(nk);
 }
 
-const LoopCloser::KeyframeKeys& LoopCloser::keys_of(map::KeyframeId kf) {
-  KeyframeKeys& k = keys_[kf];
-  const map::Generation gen = map_.keyframe_generation(kf);
-  if (k.generation == gen) return k;
-  auto count = [&](int delta) {
-    for (std::size_t t = 0; t < k.keys.size(); ++t) {
-      for (const std::uint16_t key : k.keys[t]) {
-        key_frequency_[(t << static_cast<unsigned>(kKeyBits)) | key] +=
-            static_cast<std::uint32_t>(delta);
-      }
-    }
-  };
-  if (k.generation != map::kNoGeneration) {
-    count(-1);  // the slot's former occupant
-    --keyed_keyframes_;
-  }
-  k.generation = gen;
-  const auto descs = map_.keyframe_descriptors(kf);
-  const std::uint32_t n = map_.keyframe_num_keypoints(kf);
-  for (auto& table : k.keys) table.clear();
-  for (std::uint32_t i = 0; i < n; ++i) {
-    const auto keys = descriptor_keys(descs[i]);
-    for (std::size_t t = 0; t < keys.size(); ++t) k.keys[t].push_back(keys[t]);
-  }
-  for (auto& table : k.keys) {
-    std::sort(table.begin(), table.end());
-    table.erase(std::unique(table.begin(), table.end()), table.end());
-  }
-  count(+1);
-  ++keyed_keyframes_;
-  return k;
-}
-
-double LoopCloser::shared_keys(const KeyframeKeys& a, const KeyframeKeys& b) const {
-  double shared = 0.0;
-  const double n = std::max(1.0, static_cast<double>(keyed_keyframes_));
-  for (std::size_t t = 0; t < a.keys.size(); ++t) {
-    const auto& x = a.keys[t];
-    const auto& y = b.keys[t];
-    std::size_t i = 0;
-    std::size_t j = 0;
-    while (i < x.size() && j < y.size()) {
-      if (x[i] < y[j]) {
-        ++i;
-      } else if (y[j] < x[i]) {
-        ++j;
-      } else {
-        const std::uint32_t f = key_frequency_[(t << static_cast<unsigned>(kKeyBits)) | x[i]];
-        shared += std::log(n / std::max(1.0, static_cast<double>(f)));
-        ++i;
-        ++j;
-      }
-    }
-  }
-  return shared;
-}
-
 float LoopCloser::sigma2(const features::Keypoint& k) const {
   return features::level_sigma2(level_sigma2_, k.level);
 }
@@ -254,7 +182,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   if (!opts_.enabled || kf == map::kNoId) return rep;
   const auto t0 = std::chrono::steady_clock::now();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
-  if (!map_.keyframe_is_live(kf) || kf >= keys_.size()) return rep;
+  if (!map_.keyframe_is_live(kf) || kf >= db_.capacity()) return rep;
   const std::uint64_t serial = map_.keyframe_serial(kf);
   if (any_loop_ &&
       serial < last_loop_serial_ + static_cast<std::uint64_t>(opts_.cooldown_keyframes)) {
@@ -272,12 +200,11 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   };
   std::vector<Candidate> ranked;
   std::vector<Candidate> scored;
-  const KeyframeKeys& mine = keys_of(kf);
+  (void)db_.refresh(kf);
+  db_.refresh_live();  // key frequencies first
+  const std::span<const double> key_scores = db_.score_keyframe(kf);
   const map::KeyframeId n = map_.num_keyframes();
-  for (map::KeyframeId id = 0; id < n && id < keys_.size(); ++id) {
-    if (map_.keyframe_is_live(id)) (void)keys_of(id);  // key frequencies first
-  }
-  for (map::KeyframeId id = 0; id < n && id < keys_.size(); ++id) {
+  for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
     if (id == kf || !map_.keyframe_is_live(id) ||
         map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial) {
       continue;
@@ -285,7 +212,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     if (const std::uint32_t w = map_.covisibility_weight(kf, id); w > 0) {
       ranked.push_back(Candidate{true, static_cast<double>(w), id});
     } else {
-      scored.push_back(Candidate{false, shared_keys(mine, keys_of(id)), id});
+      scored.push_back(Candidate{false, key_scores[id], id});
     }
   }
   double bar = 0.0;
@@ -502,23 +429,12 @@ int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
   for (std::uint32_t i = 0; i < n_new; ++i) {
     const map::PointId p = map_.keyframe_point(kf, i);
     if (p == map::kNoId || map_.point_is_bad(p)) continue;
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    std::size_t best_k = 0;
-    for (std::size_t k = 0; k < old_pts.size(); ++k) {
-      const int d = features::hamming(descs_new[i], old_pts[k].desc);
-      if (d < best) {
-        second = best;
-        best = d;
-        best_k = k;
-      } else if (d < second) {
-        second = d;
-      }
-    }
-    if (best > opts_.max_descriptor_distance ||
-        static_cast<double>(best) > opts_.ratio * static_cast<double>(second)) {
-      continue;
-    }
+    const NearestTwo nn = nearest_two(
+        descs_new[i],
+        old_pts.size(), [&](std::size_t k) -> const auto& { return old_pts[k].desc; });
+    if (!nn.passes(opts_.max_descriptor_distance, opts_.ratio)) continue;
+    const int best = nn.best;
+    const std::size_t best_k = nn.index;
     if (old_pts[best_k].p == p) continue;  // already one point: nothing to close
     auto& [dist, idx] = taken[best_k];
     if (best >= dist) continue;
@@ -1024,4 +940,4 @@ int LoopCloser::fuse_loop(const std::vector<map::KeyframeId>& window,
   return merged;
 }
 
-}  // namespace mer::backend
+}  // namespace mer::loop
