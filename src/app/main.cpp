@@ -105,9 +105,10 @@ int main(int argc, char** argv) {
                                      (ec ? ": " + ec.message() : std::string())));
       }
     }
-    pipeline::PipelineConfig pc{config.pipeline, config.board,   config.telemetry, config.output,
-                                config.tracking, config.map,     config.depth,     config.backend,
-                                info.intrinsics, config.culling, config.loop};
+    pipeline::PipelineConfig pc{config.pipeline, config.board,    config.telemetry,
+                                config.output,   config.tracking, config.map,
+                                config.depth,    config.backend,  info.intrinsics,
+                                config.culling,  config.loop,     config.relocalization};
     pipeline::Pipeline pipe(pc, camera, g_stop, depth_maps.value().get());
     Status s = pipe.init(args.output_dir);
     if (!s.is_ok()) {

@@ -11,6 +11,7 @@
 #include "frontend/tracking_options.h"
 #include "hal/camera_factory.h"
 #include "loop/loop_closer.h"
+#include "loop/relocalizer.h"
 #include "map/map.h"
 #include "pipeline/pipeline_options.h"
 
@@ -26,6 +27,7 @@ struct SlamConfig {
   backend::LocalBaOptions backend;
   backend::CullingOptions culling;
   mer::loop::LoopOptions loop;
+  mer::loop::RelocalizerOptions relocalization;
   pipeline::BoardOptions board;
   pipeline::TelemetryOptions telemetry;
   pipeline::OutputOptions output;
@@ -40,6 +42,9 @@ struct SlamConfig {
     v.section("backend", backend, "local bundle adjustment of the covisibility window");
     v.section("culling", culling, "removal of redundant keyframes and bad map points");
     v.section("loop", loop, "loop closure (retrieval, Sim(3) check, pose graph)");
+    v.section("relocalization", relocalization,
+              "relocalization after tracking is lost (retrieval, descriptor PnP-RANSAC, "
+              "projection refinement)");
     v.section("board", board, "thread placement and latency budgets");
     v.section("telemetry", telemetry, "latency and allocation accounting");
     v.section("output", output, "output files");

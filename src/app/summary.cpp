@@ -78,6 +78,13 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
       << num(st.allocs[i].per_frame());
   }
   j << "},\n";
+  j << "  \"tracking_allocs_by_state\": {";
+  for (std::size_t i = 0; i < st.tracking_allocs_by_state.size(); ++i) {
+    const auto& a = st.tracking_allocs_by_state[i];
+    j << (i ? ", " : "") << json_string(a.thread) << ": {\"frames\": " << a.frames
+      << ", \"allocations\": " << a.allocations << ", \"per_frame\": " << num(a.per_frame()) << "}";
+  }
+  j << "},\n";
   j << "  \"steady_state_frames\": {";
   for (std::size_t i = 0; i < st.allocs.size(); ++i) {
     j << (i ? ", " : "") << json_string(st.allocs[i].thread) << ": " << st.allocs[i].frames;
@@ -238,6 +245,16 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"last_inliers\": " << lp.last_loop.inliers
     << ", \"last_scale\": " << num(lp.last_loop.scale)
     << ", \"last_shift\": " << num(lp.last_loop.shift) << "},\n";
+  const pipeline::RelocalizationStats& rl = st.relocalization;
+  j << "  \"relocalization\": {\"enabled\": " << (rl.enabled ? "true" : "false")
+    << ", \"lost_spells\": " << tc.lost_spells << ", \"max_lost_frames\": " << tc.max_lost_frames
+    << ", \"requests\": " << tc.relocalization_requests << ", \"attempts\": " << rl.attempts
+    << ", \"successes\": " << rl.successes << ", \"resumed\": " << tc.relocalized
+    << ", \"skipped_busy\": " << rl.skipped_busy << ", \"timed_out\": " << rl.timed_out
+    << ", \"candidates\": " << rl.candidates << ", \"mean_ms\": "
+    << num(rl.attempts > 0 ? rl.sum_ms / static_cast<double>(rl.attempts) : 0.0)
+    << ", \"max_ms\": " << num(rl.max_ms) << ", \"last_success_seq\": " << rl.last_success_seq
+    << "},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -298,6 +315,11 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     const AccuracyReport& a = info.accuracy_keyframes;
     os << "  keyframe ATE (final map, " << a.pairs << " keyframes): rmse " << std::setprecision(4)
        << a.ate_rmse_m << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of path\n";
+  }
+  if (st.relocalization.attempts > 0) {
+    os << "  relocalization: " << st.relocalization.attempts << " attempts, "
+       << st.relocalization.successes << " found a pose, " << st.tracker.relocalized
+       << " resumed tracking\n";
   }
   if (st.loop.loops_closed > 0) {
     os << "  loops closed: " << st.loop.loops_closed << " (last onto frame "

@@ -22,6 +22,8 @@ const char* to_string(KeyframeReason r) {
       return "max_spacing";
     case KeyframeReason::kInitialization:
       return "initialization";
+    case KeyframeReason::kRelocalization:
+      return "relocalization";
   }
   return "?";
 }

@@ -98,6 +98,7 @@ enum class KeyframeReason : std::uint8_t {
   kKlJump,
   kMaxSpacing,
   kInitialization,
+  kRelocalization,  ///< the first frame tracked again from a relocalizer's pose
 };
 
 /// Printable name of a KeyframeReason.

@@ -213,6 +213,13 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   qt_keyframes_.clear();
   const map::KeyframeId newest = map_.newest_keyframe();
   if (newest != map::kNoId) qt_keyframes_.push_back(newest);
+  // Searched from a relocalizer's pose: the keyframe it was found against (the recent ones
+  // saw another place).
+  if (reloc_keyframe_ != map::kNoId && reloc_keyframe_ != newest &&
+      map_.keyframe_is_live(reloc_keyframe_) &&
+      map_.keyframe_generation(reloc_keyframe_) == reloc_generation_) {
+    qt_keyframes_.push_back(reloc_keyframe_);
+  }
   for (const KeyframeHistogram& h : recent_) {
     for (int i = 0; i < h.size(); ++i) {
       const std::uint32_t kf = h.keyframe(i);
@@ -474,10 +481,67 @@ void Tracker::fix_focal_at_init(std::uint64_t seq) {
                focal_.value, focal_.estimates);
 }
 
+// ---- State machine and relocalization ------------------------------------------------
+
+void Tracker::advance_state(TrackingResult& r) {
+  if (!initialized_) {
+    state_ = TrackerState::kInitializing;
+  } else if (r.state == TrackState::kTracked) {
+    state_ = TrackerState::kTracking;
+    lost_frames_ = 0;
+  } else {
+    if (lost_frames_ == 0) ++counters_.lost_spells;
+    ++lost_frames_;
+    counters_.max_lost_frames = std::max(counters_.max_lost_frames, lost_frames_);
+    state_ = relocalization_available_ &&
+                     lost_frames_ > static_cast<std::uint64_t>(opts_.relocalize_after_lost_frames)
+                 ? TrackerState::kRelocalizing
+                 : TrackerState::kLost;
+  }
+  r.tracker_state = state_;
+  r.relocalization_request = state_ == TrackerState::kRelocalizing;
+  if (r.relocalization_request) ++counters_.relocalization_requests;
+}
+
+void Tracker::reserve_relocalization_request(RelocalizationRequest& req) const {
+  const auto n = static_cast<std::size_t>(max_keypoints());
+  req.keypoints.resize(n);
+  req.descriptors.resize(n);
+  req.count = 0;
+}
+
+void Tracker::fill_relocalization_request(const hal::Frame& frame,
+                                          RelocalizationRequest& req) const {
+  const std::size_t n = std::min({kps_.size(), req.keypoints.size(), req.descriptors.size()});
+  std::copy_n(kps_.begin(), n, req.keypoints.begin());
+  std::copy_n(descs_.begin(), n, req.descriptors.begin());
+  req.count = n;
+  req.seq = frame.seq;
+  req.t_ns = frame.t_ns;
+  req.K = K_;
+}
+
+void Tracker::set_relocalization_hint(const RelocalizationHint& hint) {
+  if (!hint.valid || state_ != TrackerState::kRelocalizing) return;
+  hint_ = hint;
+  ++counters_.relocalization_hints;
+}
+
 // ---- Tracking -------------------------------------------------------------------------
 
 bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   ++frames_since_init_;
+  // A relocalizer's pose (a frame of this lost spell) replaces the last tracked pose.
+  const bool from_hint = hint_.valid && state_ == TrackerState::kRelocalizing;
+  reloc_keyframe_ = map::kNoId;
+  if (from_hint) {
+    T_c_w_ = hint_.T_c_w;
+    have_pose_ = false;
+    poor_prediction_ = true;
+    reloc_keyframe_ = hint_.keyframe;
+    reloc_generation_ = hint_.generation;
+  }
+  hint_.valid = false;
   const SE3d T_c_w_pred = have_pose_ ? SE3d(velocity_ * T_c_w_) : T_c_w_;
   const SE3d T_c_w_prev = T_c_w_;
   const std::int64_t t_query = platform::monotonic_now_ns();
@@ -522,6 +586,15 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   KeyframeReason reason = policy_.decide(e);
   if (force_keyframe_ && reason == KeyframeReason::kNone)
     reason = static_cast<KeyframeReason>(last_reason_);
+  if (from_hint) {
+    // Back in the map at a place it knew: a keyframe ties the frames that follow to it.
+    reason = KeyframeReason::kRelocalization;
+    r.relocalized = true;
+    ++counters_.relocalized;
+    MER_LOG_INFO("frame %llu: relocalized (%d inliers) after %llu lost frames",
+                 static_cast<unsigned long long>(frame.seq), r.num_inliers,
+                 static_cast<unsigned long long>(lost_frames_));
+  }
   force_keyframe_ = false;
   r.kl = static_cast<float>(policy_.last_kl());
   const bool is_kf = reason != KeyframeReason::kNone;
@@ -960,10 +1033,12 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
       (void)initialize_mono(frame, r);
     }
     if (r.state == TrackState::kTracked) set_anchor(r);
+    advance_state(r);
     return r;
   }
   (void)track(frame, r);
   if (r.state == TrackState::kTracked) set_anchor(r);
+  advance_state(r);
   // Ring of recent tracked frames (dense depth of later keyframes).
   if (!recent_gray_.empty() && r.state == TrackState::kTracked &&
       frame.gray.size() == recent_gray_[0].size()) {

@@ -11,7 +11,9 @@
 ///    jointly until it is stable, then fixed to the running median);
 /// 5. keyframe decision (inlier count, spread, KL jump of the tracked-point histogram).
 /// Before a map exists it initializes: two-view reconstruction (monocular) or one frame
-/// with depth (RGB-D). Lost frames are reported; relocalization is not part of tracking.
+/// with depth (RGB-D). Lost frames are reported and, after
+/// `relocalize_after_lost_frames`, offered to the relocalizer (which runs outside tracking);
+/// a pose it finds is the prediction of the next frame (TrackerState: the state machine).
 ///
 /// Threading: reads the map lock-free as a registered reader (map.h, slot reclamation): each
 /// spin_once() starts with a quiescent point, and the ids it keeps across frames are either
@@ -49,6 +51,28 @@ struct FocalReport {
   int estimates = 0;               ///< estimates the running median was taken over
 };
 
+/// A lost frame's features, handed to the relocalizer (filled by
+/// Tracker::fill_relocalization_request; sized once by Tracker::reserve_relocalization_request,
+/// so filling it does not allocate).
+struct RelocalizationRequest {
+  std::uint64_t seq = 0;                          ///< frame sequence number
+  std::int64_t t_ns = 0;                          ///< capture time, ns
+  geometry::Pinhole K;                            ///< intrinsics the frame was tracked with
+  std::vector<features::Keypoint> keypoints;      ///< [0, count): level-0 px
+  std::vector<features::Descriptor> descriptors;  ///< [0, count)
+  std::size_t count = 0;                          ///< keypoints in use
+};
+
+/// A relocalizer's pose for a frame of the lost spell: the prediction the tracker searches the
+/// next frame from (Tracker::set_relocalization_hint).
+struct RelocalizationHint {
+  bool valid = false;
+  std::uint64_t seq = 0;                            ///< frame it was found for
+  SE3d T_c_w = SE3d::Identity();                    ///< world-to-camera pose of that frame
+  map::KeyframeId keyframe = map::kNoId;            ///< keyframe it relocalized against
+  map::Generation generation = map::kNoGeneration;  ///< that keyframe's occupant
+};
+
 /// Counters of the tracker (summary.json `tracking`).
 struct TrackerCounters {
   std::uint64_t init_attempts = 0;    ///< two-view reconstructions tried
@@ -60,7 +84,12 @@ struct TrackerCounters {
   std::uint64_t lost = 0;
   std::uint64_t wide_searches = 0;  ///< frames that needed the wide radius
   std::uint64_t keyframes_decided = 0;
-  std::uint64_t keyframe_reasons[6] = {};  ///< per KeyframeReason
+  std::uint64_t keyframe_reasons[7] = {};     ///< per KeyframeReason
+  std::uint64_t relocalization_requests = 0;  ///< lost frames offered to the relocalizer
+  std::uint64_t relocalization_hints = 0;     ///< poses the relocalizer found
+  std::uint64_t relocalized = 0;              ///< of those, tracked again from the pose
+  std::uint64_t lost_spells = 0;              ///< times tracking went from tracked to lost
+  std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
   std::uint64_t sum_query_temporal = 0;
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
@@ -90,6 +119,21 @@ class Tracker {
   /// The tracking thread is done with the map (end of its loop): its reader registration is
   /// released, so slots freed by the keyframes still queued can be reused. No spin_once after.
   void stop_reading();
+
+  /// Sizes `req` for this tracker's keypoints (setup: allocates).
+  void reserve_relocalization_request(RelocalizationRequest& req) const;
+  /// Copies the features of the frame the last spin_once() processed into `req` (call when
+  /// its result asked for relocalization). No allocation once reserved.
+  void fill_relocalization_request(const hal::Frame& frame, RelocalizationRequest& req) const;
+  /// A relocalizer's pose: the next spin_once() searches from it (wide radius, the pose's
+  /// keyframe joining the temporal query) instead of the last tracked pose, and a frame
+  /// tracked that way becomes a keyframe (reason relocalization). Ignored once tracking has
+  /// come back on its own.
+  void set_relocalization_hint(const RelocalizationHint& hint);
+  /// A relocalizer answers this tracker's requests (setup call; without one, lost frames stay
+  /// in state lost and ask for nothing).
+  void enable_relocalization(bool on) { relocalization_available_ = on; }
+  TrackerState state() const { return state_; }
 
   /// Keypoint variance per pyramid level (for depth inference).
   std::vector<float> level_sigma2() const;
@@ -128,6 +172,8 @@ class Tracker {
   bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
   void set_reference(const hal::Frame& frame);
   bool reference_too_old(std::int64_t t_ns) const;
+  /// Updates the state machine after a frame (tracked or not) and fills r's state fields.
+  void advance_state(TrackingResult& r);
   int match_reference();
   bool focal_from_reference(int matches);
   void update_focal(double f, std::uint64_t seq);
@@ -229,6 +275,14 @@ class Tracker {
   std::int64_t recent_spacing_ns_ = 0;
   std::uint8_t last_reason_ = 0;
   bool force_keyframe_ = false;
+
+  // State machine and relocalization.
+  TrackerState state_ = TrackerState::kInitializing;
+  std::uint64_t lost_frames_ = 0;  // consecutive lost frames
+  bool relocalization_available_ = false;
+  RelocalizationHint hint_;                      // pending pose from the relocalizer
+  map::KeyframeId reloc_keyframe_ = map::kNoId;  // joins Q_T for the frame searched from a hint
+  map::Generation reloc_generation_ = map::kNoGeneration;
 };
 
 }  // namespace mer::frontend

@@ -136,6 +136,8 @@ struct TrackingOptions {
   double spatial_max_age_s = 0.0;  ///< Q_S skips points whose reference keyframe is older, s
                                    ///< (0: no limit)
   int min_inliers = 25;            ///< fewer PnP inliers: the frame is lost
+  int relocalize_after_lost_frames = 2;  ///< lost frames searched from the last pose only,
+                                         ///< before relocalization is asked for as well
   int busy_work_us = 0;  ///< extra busy-wait per frame, us (load tests of the drop policy)
   double rgbd_max_depth_step = 0.03;  ///< sensor depth at a keypoint: relative step across its
                                       ///< 2x2 pixels above which it is a depth edge (refused)
@@ -166,6 +168,11 @@ struct TrackingOptions {
             options::Range<double>{0.0, 1e9});
     v.field("min_inliers", min_inliers, "fewer PnP inliers marks the frame lost",
             options::Range<int>{3, 100000});
+    v.field("relocalize_after_lost_frames", relocalize_after_lost_frames,
+            "consecutive lost frames that are only searched again from the last pose (wide "
+            "radius) before each next lost frame is also offered to the relocalizer "
+            "(relocalization.*; 0: from the first lost frame)",
+            options::Range<int>{0, 100000});
     v.field("busy_work_us", busy_work_us,
             "extra busy-wait per frame, us (simulates a heavier tracker; 0 in normal use)",
             options::Range<int>{0, 10000000});

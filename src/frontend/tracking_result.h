@@ -30,6 +30,40 @@ constexpr const char* to_string(TrackState s) {
   return "?";
 }
 
+/// The tracker's state machine (frames.csv `tracker_state`), after the frame:
+/// - initializing: no map yet (two-view or RGB-D initialization is being tried);
+/// - tracking: the frame was localized against the map;
+/// - lost: localization failed; the next frames still search from the last pose with a wide
+///   radius (`tracking.relocalize_after_lost_frames` of them before relocalization is asked);
+/// - relocalizing: localization has failed for that many frames; each frame is also offered to
+///   the relocalizer (retrieval of keyframes by the frame's descriptors, PnP-RANSAC), and a pose
+///   it finds is the prediction of the next frame's search;
+/// - new_segment: a new map segment is being initialized (reserved: not entered yet).
+enum class TrackerState : std::uint8_t {
+  kInitializing = 0,
+  kTracking = 1,
+  kLost = 2,
+  kRelocalizing = 3,
+  kNewSegment = 4,
+};
+
+/// Printable name of a TrackerState.
+constexpr const char* to_string(TrackerState s) {
+  switch (s) {
+    case TrackerState::kInitializing:
+      return "initializing";
+    case TrackerState::kTracking:
+      return "tracking";
+    case TrackerState::kLost:
+      return "lost";
+    case TrackerState::kRelocalizing:
+      return "relocalizing";
+    case TrackerState::kNewSegment:
+      return "new_segment";
+  }
+  return "?";
+}
+
 /// Stages whose per-frame latency is carried with the result (columns of latency.csv).
 enum class StageId : std::uint8_t { kCapture = 0, kTracking = 1, kQueue = 2, kCount = 3 };
 
@@ -60,6 +94,12 @@ struct TrackingResult {
   std::uint64_t seq = 0;  ///< frame sequence number from the source
   std::int64_t t_ns = 0;  ///< frame timestamp, ns
   TrackState state = TrackState::kNotInitialized;
+  TrackerState tracker_state = TrackerState::kInitializing;  ///< state machine after the frame
+  /// The frame should be offered to the relocalizer (state relocalizing): the caller fills a
+  /// RelocalizationRequest with Tracker::fill_relocalization_request while the frame's
+  /// features are still the tracker's (before its next spin_once).
+  bool relocalization_request = false;
+  bool relocalized = false;       ///< tracked from a relocalizer's pose (after a lost spell)
   bool is_keyframe = false;       ///< this frame became a keyframe
   bool keyframe_job = false;      ///< the keyframe still has to be created (queue a job)
   SE3d T_w_c = SE3d::Identity();  ///< camera-to-world pose (valid when tracked)

@@ -54,8 +54,9 @@
 
 namespace mer::loop {
 
-/// Options of relocalization (config section `relocalization`, once wired).
+/// Options of relocalization (config section `relocalization`).
 struct RelocalizerOptions {
+  bool enabled = true;               ///< offer frames of a lost spell to the relocalizer
   int max_candidates = 5;            ///< keyframes retrieved and checked, best first
   int match_neighbours = 2;          ///< covisible keyframes whose points join a candidate's
   int local_keyframes = 8;           ///< covisible keyframes of the local map (refinement)
@@ -71,6 +72,11 @@ struct RelocalizerOptions {
 
   template <class V>
   void visit(V& v) {
+    v.field("enabled", enabled,
+            "relocalize when tracking is lost: frames the tracker has failed on for "
+            "tracking.relocalize_after_lost_frames are matched against keyframes retrieved by "
+            "their descriptors (lockstep: inline after tracking; threaded: on the low-priority "
+            "depth thread, never on the tracking thread)");
     v.field("max_candidates", max_candidates,
             "keyframes retrieved from the keyframe database and checked, best score first",
             options::Range<int>{1, 64});

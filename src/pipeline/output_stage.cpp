@@ -81,7 +81,7 @@ Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   if (s.is_ok()) {
     s = open_file(frames_csv_, (d / "frames.csv").string(),
                   "seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,query_s,"
-                  "query_total,keyframe_reason,kl,focal\n");
+                  "query_total,keyframe_reason,kl,focal,tracker_state\n");
   }
   if (s.is_ok()) {
     s = open_file(latency_csv_, (d / "latency.csv").string(),
@@ -110,13 +110,13 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   }
   char t_s[32];
   format_seconds(t_s, sizeof t_s, r.t_ns);
-  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx,%d,%d,%d,%d,%d,%s,%.4f,%.3f\n",
+  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx,%d,%d,%d,%d,%d,%s,%.4f,%.3f,%s\n",
                static_cast<unsigned long long>(r.seq), t_s, frontend::to_string(r.state),
                r.is_keyframe ? 1 : 0, r.num_features,
                static_cast<unsigned long long>(r.feature_hash), r.num_matches, r.num_inliers,
                r.query_temporal, r.query_spatial, r.query_total,
                frontend::to_string(static_cast<frontend::KeyframeReason>(r.keyframe_reason)),
-               static_cast<double>(r.kl), r.focal);
+               static_cast<double>(r.kl), r.focal, frontend::to_string(r.tracker_state));
   if (frames_ % static_cast<std::uint64_t>(opts_.flush_every) == 0) flush_all();
   const std::int64_t out_ns = platform::monotonic_now_ns() - t0;
   using S = frontend::StageId;

@@ -13,7 +13,8 @@
 ///                   pose T_w_c for a frame tracked before any keyframe existed. mer_slam
 ///                   re-anchors them to the final map (final_trajectory.h).
 /// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,
-///                   query_s,query_total,keyframe_reason,kl,focal` for every processed frame
+///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state` for every
+///                   processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
 
 #include <cstdint>

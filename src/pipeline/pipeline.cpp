@@ -143,6 +143,23 @@ Status Pipeline::init(const std::string& output_dir) {
       std::make_unique<backend::MapCuller>(config_.culling, *map_, builder_->metric_map_depth());
   loop_ = std::make_unique<loop::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
                                              builder_->metric_map_depth(), ba_.get());
+  if (config_.relocalization.enabled) {
+    int reader = -1;
+    loop::KeyframeDatabase* db = &loop_->database();
+    if (!config_.pipeline.lockstep) {
+      // Threaded, it runs on the depth thread: a registered map reader with its own database.
+      Result<int> r = map_->register_reader();
+      if (!r.is_ok()) return r.status();
+      reader = r.value();
+      reloc_reader_ = reader;
+      reloc_db_ = std::make_unique<loop::KeyframeDatabase>(*map_);
+      db = reloc_db_.get();
+    }
+    relocalizer_ = std::make_unique<loop::Relocalizer>(config_.relocalization, *map_, *db, reader);
+    tracker_->reserve_relocalization_request(reloc_request_);
+    tracker_->enable_relocalization(true);
+  }
+  stats_.relocalization.enabled = relocalizer_ != nullptr;
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;
@@ -166,6 +183,8 @@ Status Pipeline::init(const std::string& output_dir) {
         frontend::to_string(static_cast<frontend::TrackStep>(i)), 0, trace);
   }
   lat_keyframe_ = std::make_unique<platform::LatencyRecorder>("keyframe", 0, trace);
+  lat_relocalization_ = std::make_unique<platform::LatencyRecorder>(
+      "relocalization", ms_to_ns(config_.relocalization.max_time_ms), trace);
   lat_local_ba_ = std::make_unique<platform::LatencyRecorder>(
       "local_ba", ms_to_ns(config_.backend.max_time_ms), trace);
   output_dir_ = output_dir;
@@ -265,9 +284,10 @@ Status Pipeline::write_final_keyframes() const {
 void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.wall_time_s = static_cast<double>(platform::monotonic_now_ns() - t_start_ns) * kNsToS;
   stats_.pose_source = "tracking";
-  stats_.latency = {summarize(*lat_capture_),  summarize(*lat_tracking_),
-                    summarize(*lat_output_),   summarize(*lat_end_to_end_),
-                    summarize(*lat_keyframe_), summarize(*lat_local_ba_)};
+  stats_.latency = {summarize(*lat_capture_),       summarize(*lat_tracking_),
+                    summarize(*lat_output_),        summarize(*lat_end_to_end_),
+                    summarize(*lat_keyframe_),      summarize(*lat_local_ba_),
+                    summarize(*lat_relocalization_)};
   stats_.tracking_steps.clear();
   for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
   stats_.map = map_->counters();
@@ -282,6 +302,12 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.depth_backend = std::string(builder_->backend_name());
   stats_.backend_depth_edges = ba_->depth_edge_mode();
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
+  stats_.tracking_allocs_by_state.clear();
+  for (std::size_t i = 0; i < allocs_by_state_.size(); ++i) {
+    ThreadAllocs a = allocs_by_state_[i];
+    a.thread = frontend::to_string(static_cast<frontend::TrackerState>(i));
+    stats_.tracking_allocs_by_state.push_back(a);
+  }
 }
 
 void Pipeline::run_final_ba() {
@@ -332,6 +358,47 @@ void Pipeline::create_keyframe(const map::KeyframeJob& job) {
   optimize_and_cull(rep.ok ? rep.keyframe : map::kNoId, job.K, job.seq,
                     rep.ok ? rep.keyframe : map_->newest_keyframe());
   if (rep.ok && map_->keyframe_is_live(rep.keyframe)) (void)loop_->spin_once(rep.keyframe, job.K);
+}
+
+frontend::RelocalizationHint Pipeline::relocalize(const frontend::RelocalizationRequest& req) {
+  loop::RelocQuery q;
+  q.seq = req.seq;
+  q.t_ns = req.t_ns;
+  q.keypoints = std::span<const features::Keypoint>(req.keypoints.data(), req.count);
+  q.descriptors = std::span<const features::Descriptor>(req.descriptors.data(), req.count);
+  q.K = req.K;
+  const std::int64_t t0 = platform::monotonic_now_ns();
+  const loop::RelocResult res = relocalizer_->spin_once(q);
+  lat_relocalization_->record(req.seq, t0, platform::monotonic_now_ns() - t0);
+  RelocalizationStats& st = stats_.relocalization;
+  ++st.attempts;
+  st.candidates += static_cast<std::uint64_t>(res.candidates_tried);
+  if (res.timed_out) ++st.timed_out;
+  st.sum_ms += res.ms;
+  st.max_ms = std::max(st.max_ms, res.ms);
+  frontend::RelocalizationHint hint;
+  if (res.success) {
+    ++st.successes;
+    st.last_success_seq = static_cast<std::int64_t>(req.seq);
+    hint.valid = true;
+    hint.seq = req.seq;
+    hint.T_c_w = res.T_c_w;
+    hint.keyframe = res.keyframe;
+    hint.generation = res.generation;
+    MER_LOG_DEBUG("relocalizer: frame %llu found against keyframe %u (%d inliers, %.1f ms)",
+                  static_cast<unsigned long long>(req.seq), res.keyframe, res.inliers, res.ms);
+  }
+  return hint;
+}
+
+void Pipeline::count_state_allocs(const frontend::TrackingResult& r, std::uint64_t allocations) {
+  // The frame that built the map is counted with initialization, the work it did.
+  const frontend::TrackerState st = r.state == frontend::TrackState::kTracked && !r.steady
+                                        ? frontend::TrackerState::kInitializing
+                                        : r.tracker_state;
+  ThreadAllocs& a = allocs_by_state_[static_cast<std::size_t>(st)];
+  a.allocations += allocations;
+  ++a.frames;
 }
 
 void Pipeline::count_result(const frontend::TrackingResult& r) {
@@ -401,6 +468,11 @@ Status Pipeline::run_lockstep() {
     lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
     const std::uint64_t trk_delta = trk_allocs.delta();
     count_result(r);
+    // relocalization (inline in lockstep: deterministic); its pose predicts the next frame
+    if (r.relocalization_request && relocalizer_) {
+      tracker_->fill_relocalization_request(*frame, reloc_request_);
+      tracker_->set_relocalization_hint(relocalize(reloc_request_));
+    }
     // keyframe creation (inline in lockstep: deterministic)
     if (r.keyframe_job) {
       map::KeyframeJob& job = jobs_[0];
@@ -421,6 +493,7 @@ Status Pipeline::run_lockstep() {
       allocs_tracking_.allocations += trk_delta;
       ++allocs_tracking_.frames;
     }
+    if (steady) count_state_allocs(r, trk_delta);
     if (steady) {
       allocs_output_.allocations += out_allocs.delta();
       ++allocs_output_.frames;
@@ -454,6 +527,13 @@ Status Pipeline::run_threaded() {
   std::atomic<bool> tracking_done{false};
   std::atomic<bool> depth_done{false};
   Status capture_status;
+  // Relocalization mailbox: the tracking thread posts a lost frame's features (reloc_request_),
+  // the depth thread answers with a pose hint, the tracking thread takes it before its next
+  // frame. One request in flight; a lost frame that finds it busy is not posted.
+  enum : int { kRelocIdle = 0, kRelocPosted = 1, kRelocAnswered = 2 };
+  std::atomic<int> reloc_state{kRelocIdle};
+  frontend::RelocalizationHint reloc_answer;
+  constexpr std::uint32_t kRelocWork = 0xFFFFFFFFU;  // depth-thread work item: relocalize
 
   auto capture_body = [&] {
     std::int64_t last_frame_ns = platform::monotonic_now_ns();
@@ -519,6 +599,10 @@ Status Pipeline::run_threaded() {
         [&](std::uint32_t& idx) {
           AllocScope allocs;
           hal::FrameHandle frame = pool.adopt(idx);
+          if (reloc_state.load(std::memory_order_acquire) == kRelocAnswered) {
+            tracker_->set_relocalization_hint(reloc_answer);
+            reloc_state.store(kRelocIdle, std::memory_order_release);
+          }
           const std::int64_t t_trk = platform::monotonic_now_ns();
           frontend::TrackingResult r = tracker_->spin_once(*frame);
           const std::int64_t t_done = platform::monotonic_now_ns();
@@ -531,6 +615,15 @@ Status Pipeline::run_threaded() {
           lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
           const std::uint64_t trk_delta = allocs.delta();
           count_result(r);
+          if (r.relocalization_request && relocalizer_) {
+            if (reloc_state.load(std::memory_order_acquire) == kRelocIdle) {
+              tracker_->fill_relocalization_request(*frame, reloc_request_);
+              reloc_state.store(kRelocPosted, std::memory_order_release);
+              job_wake.notify();
+            } else {
+              ++stats_.relocalization.skipped_busy;
+            }
+          }
           if (r.keyframe_job) {
             std::uint32_t slot = 0;
             if (free_ring->try_pop(slot)) {
@@ -549,9 +642,12 @@ Status Pipeline::run_threaded() {
                          static_cast<unsigned long long>(r.seq));
           }
           result_wake.notify();
-          if (++tracked_frames > warmup && r.steady) {
-            allocs_tracking_.allocations += trk_delta;
-            ++allocs_tracking_.frames;
+          if (++tracked_frames > warmup) {
+            if (r.steady) {
+              allocs_tracking_.allocations += trk_delta;
+              ++allocs_tracking_.frames;
+            }
+            count_state_allocs(r, trk_delta);
           }
         });
     tracker_->stop_reading();  // queued keyframes may reuse slots freed after its last frame
@@ -563,8 +659,22 @@ Status Pipeline::run_threaded() {
   // Depth thread (low priority): keyframe creation proper, then the back end is told.
   auto depth_body = [&] {
     consume_loop<std::uint32_t>(
-        job_wake, tracking_done, [&](std::uint32_t& slot) { return job_ring->try_pop(slot); },
+        job_wake, tracking_done,
         [&](std::uint32_t& slot) {
+          if (job_ring->try_pop(slot)) return true;
+          if (reloc_state.load(std::memory_order_acquire) != kRelocPosted) return false;
+          slot = kRelocWork;
+          return true;
+        },
+        [&](std::uint32_t& slot) {
+          // The relocalizer holds nothing of the map between its runs.
+          if (reloc_reader_ >= 0) map_->reader_quiescent(reloc_reader_);
+          if (slot == kRelocWork) {
+            reloc_answer = relocalize(reloc_request_);
+            if (reloc_reader_ >= 0) map_->reader_quiescent(reloc_reader_);
+            reloc_state.store(kRelocAnswered, std::memory_order_release);
+            return;
+          }
           const map::KeyframeJob& job = jobs_[slot];
           const depth::KeyframeBuildReport rep = build_keyframe(job);
           BackendJob b;
@@ -588,6 +698,7 @@ Status Pipeline::run_threaded() {
           if (rep.ok) ba_->request_abort();
           backend_wake.notify();
         });
+    if (reloc_reader_ >= 0) map_->release_reader(reloc_reader_);
     depth_done.store(true, std::memory_order_release);
     backend_wake.notify_all();
   };

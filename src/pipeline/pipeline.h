@@ -45,6 +45,7 @@
 #include "frontend/tracker.h"
 #include "hal/camera.h"
 #include "loop/loop_closer.h"
+#include "loop/relocalizer.h"
 #include "map/keyframe_job.h"
 #include "map/map.h"
 #include "pipeline/final_trajectory.h"
@@ -78,6 +79,7 @@ struct PipelineConfig {
   hal::CameraIntrinsics intrinsics;  ///< calibration in use (source's, or the override)
   backend::CullingOptions culling;
   mer::loop::LoopOptions loop;
+  mer::loop::RelocalizerOptions relocalization;
 };
 
 /// Latency of one stage, summarized.
@@ -120,6 +122,19 @@ struct FinalBaStats {
   double ms = 0.0;
 };
 
+/// What relocalization did over a run (summary.json `relocalization`).
+struct RelocalizationStats {
+  bool enabled = false;
+  std::uint64_t attempts = 0;          ///< lost frames the relocalizer ran on
+  std::uint64_t successes = 0;         ///< of those, a pose with enough inliers was found
+  std::uint64_t timed_out = 0;         ///< attempts that left candidates unchecked (max_time_ms)
+  std::uint64_t candidates = 0;        ///< keyframes checked geometrically, all attempts
+  std::uint64_t skipped_busy = 0;      ///< threaded: requests not posted, the last one in flight
+  double max_ms = 0.0;                 ///< longest attempt
+  double sum_ms = 0.0;                 ///< all attempts (mean = sum / attempts)
+  std::int64_t last_success_seq = -1;  ///< frame of the last success
+};
+
 /// Counters and summaries of one run.
 struct PipelineStats {
   std::uint64_t frames_in = 0;               ///< frames delivered by the source
@@ -138,6 +153,7 @@ struct PipelineStats {
   backend::LocalBaTotals backend;            ///< local bundle adjustment totals
   backend::CullingTotals culling;            ///< map culling totals
   mer::loop::LoopTotals loop;                ///< loop closure totals
+  RelocalizationStats relocalization;        ///< relocalization attempts and successes
   map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
@@ -152,6 +168,10 @@ struct PipelineStats {
   hal::SourceCounters source;  ///< what the source dropped or survived
   std::vector<StageLatency> latency;
   std::vector<ThreadAllocs> allocs;
+  /// The tracking thread's heap allocations after the warm-up, per tracker state of the
+  /// frame (every frame, not only steady ones; `thread` holds the state's name). The frame
+  /// that initialized the map counts as initializing.
+  std::vector<ThreadAllocs> tracking_allocs_by_state;
   std::vector<ThreadPlacement> threads;
   FinalBaStats final_ba;  ///< pipeline.final_ba
 };
@@ -210,6 +230,15 @@ class Pipeline {
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   std::unique_ptr<backend::MapCuller> culler_;
   std::unique_ptr<loop::LoopCloser> loop_;
+  /// Threaded: the relocalizer's own keyframe database (it runs on the depth thread while
+  /// loop closure queries its own on the back-end thread); lockstep shares loop_'s.
+  std::unique_ptr<loop::KeyframeDatabase> reloc_db_;
+  std::unique_ptr<loop::Relocalizer> relocalizer_;  ///< null when relocalization.enabled is off
+  frontend::RelocalizationRequest reloc_request_;
+  int reloc_reader_ = -1;  ///< threaded: the relocalizer's map-reader handle (depth thread)
+  /// Runs the relocalizer on `req` (the calling thread: lockstep, or the depth thread) and
+  /// counts it; the hint is valid when it succeeded.
+  frontend::RelocalizationHint relocalize(const frontend::RelocalizationRequest& req);
   /// Lockstep keyframe creation: build_keyframe, then optimize_and_cull.
   void create_keyframe(const map::KeyframeJob& job);
   /// The keyframe builder (depth inference + insertion; latency `keyframe`).
@@ -221,8 +250,9 @@ class Pipeline {
   std::array<std::unique_ptr<platform::LatencyRecorder>,
              static_cast<std::size_t>(frontend::TrackStep::kCount)>
       lat_steps_;
-  std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;  ///< builder only (depth thread)
-  std::unique_ptr<platform::LatencyRecorder> lat_local_ba_;  ///< one local BA run (back end)
+  std::unique_ptr<platform::LatencyRecorder> lat_keyframe_;        ///< builder only (depth thread)
+  std::unique_ptr<platform::LatencyRecorder> lat_local_ba_;        ///< one local BA run (back end)
+  std::unique_ptr<platform::LatencyRecorder> lat_relocalization_;  ///< one relocalizer attempt
   OutputStage output_;
   std::unique_ptr<platform::LatencyRecorder> lat_capture_;
   std::unique_ptr<platform::LatencyRecorder> lat_tracking_;
@@ -230,6 +260,8 @@ class Pipeline {
   std::unique_ptr<platform::LatencyRecorder> lat_end_to_end_;
   ThreadAllocs allocs_capture_{"capture"};
   ThreadAllocs allocs_tracking_{"tracking"};
+  std::array<ThreadAllocs, 5> allocs_by_state_{};  ///< per frontend::TrackerState
+  void count_state_allocs(const frontend::TrackingResult& r, std::uint64_t allocations);
   ThreadAllocs allocs_output_{"output"};
   PipelineStats stats_;
   bool initialized_ = false;

@@ -21,7 +21,7 @@ TEST(RelocalizerOptions, EveryFieldHasADocLine) {
   testing::DocCheck v;
   RelocalizerOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 11 + 8);  // its own and the nested pnp section's
+  EXPECT_EQ(v.fields, 12 + 8);  // its own and the nested pnp section's
 }
 
 // A map of headings 0..200 degrees (21 keyframes): the tracker was last at 200 degrees.

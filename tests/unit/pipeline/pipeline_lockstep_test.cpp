@@ -100,11 +100,14 @@ TEST(PipelineLockstep, CountsAndLatencies) {
   EXPECT_GE(s.keyframes, 1U);
   EXPECT_EQ(s.frames_lost, 0U);
   EXPECT_EQ(s.end_reason, "end_of_stream");
-  ASSERT_EQ(s.latency.size(), 6U);
+  ASSERT_EQ(s.latency.size(), 7U);
   EXPECT_EQ(s.latency[4].name, "keyframe");
   EXPECT_EQ(s.latency[4].count, s.keyframes - 1) << "one job per keyframe after the first";
   EXPECT_EQ(s.latency[5].name, "local_ba");
   EXPECT_EQ(s.latency[5].count, s.backend.runs) << "one sample per local BA run";
+  EXPECT_EQ(s.latency[6].name, "relocalization");
+  EXPECT_EQ(s.latency[6].count, s.relocalization.attempts) << "never lost: no attempt";
+  EXPECT_EQ(s.relocalization.attempts, 0U);
   for (std::size_t i = 0; i < 4; ++i) {
     const auto& l = s.latency[i];
     EXPECT_EQ(l.count, 25U) << l.name;
