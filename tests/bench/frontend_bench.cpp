@@ -5,6 +5,9 @@
 // run on another thread in mer_slam. Counters: per-frame p50/p99 and per-step means (ms),
 // heap allocations per tracked frame. bm_local_ba: the local BA per keyframe (see there);
 // bm_local_ba_abort: the true latency of its abort request, from a second thread.
+// bm_tracking_kidnap: the tracking stage on the frames of a kidnap (lost, relocalizing, and
+// tracked again from the relocalizer's pose), per tracker state; the relocalizer itself runs
+// on another thread in mer_slam and is timed apart.
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -21,6 +24,8 @@
 #include "depth/keyframe_builder.h"
 #include "frontend/tracker.h"
 #include "hal/synthetic/synthetic_camera.h"
+#include "loop/keyframe_database.h"
+#include "loop/relocalizer.h"
 #include "platform/alloc_counter.h"
 #include "platform/clock.h"
 
@@ -131,6 +136,123 @@ void bm_tracking(benchmark::State& state) {
         step_sum[s] / n;
   }
   state.counters["allocs_per_frame"] = static_cast<double>(allocs) / n;
+}
+
+// A kidnap in RGB-D on room_orbit: frames 0-179 tracked, 30 black frames, then frames 60-119
+// again (the camera is back where it was 4 s before the blackout). Per frame the tracking
+// stage is timed as the tracking thread runs it (spin_once, and the copy of a lost frame's
+// features for the relocalizer); the relocalizer runs untimed between frames (in mer_slam:
+// on the depth thread) and its pose is handed back before the next frame. Counters per tracker
+// state (tracking / lost / relocalizing): frames, p50/p99 (ms), heap allocations per frame;
+// relocalize_p50/p99_ms: one relocalizer attempt; relocalized_after: lost frames before
+// tracking came back.
+void bm_tracking_kidnap(benchmark::State& state) {
+  const Sequence& seq = sequence();
+  constexpr int kBefore = 180;
+  constexpr int kBlack = 30;
+  constexpr int kBackFrom = 60;
+  constexpr int kBackTo = 120;
+  std::vector<hal::Frame> frames;
+  for (int i = 0; i < kBefore; ++i) frames.push_back(seq.frames[static_cast<std::size_t>(i)]);
+  for (int i = 0; i < kBlack; ++i) {
+    hal::Frame f;
+    f.gray = cv::Mat::zeros(seq.height, seq.width, CV_8UC1);
+    f.depth = cv::Mat::zeros(seq.height, seq.width, CV_32FC1);
+    frames.push_back(f);
+  }
+  for (int i = kBackFrom; i < kBackTo; ++i) {
+    hal::Frame f = seq.frames[static_cast<std::size_t>(i)];
+    f.gray = f.gray.clone();
+    f.depth = f.depth.clone();
+    frames.push_back(f);
+  }
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    frames[i].seq = i;
+    frames[i].t_ns = static_cast<std::int64_t>(static_cast<double>(i) / kFps * 1e9);
+  }
+  constexpr std::size_t kStates = 5;
+  std::array<std::vector<double>, kStates> ms;
+  std::array<std::uint64_t, kStates> allocs{};
+  std::vector<double> reloc_ms;
+  double relocalized_after = -1.0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    map::MapOptions mo;
+    mo.max_keyframes = 128;
+    mo.max_points = 50000;
+    auto map = std::make_unique<map::Map>(mo);
+    frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
+                              "rgbd", false);
+    (void)tracker.init();
+    tracker.enable_relocalization(true);
+    frontend::RelocalizationRequest req;
+    tracker.reserve_relocalization_request(req);
+    const backend::LocalBaOptions ba_opts;
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2(),
+                                   ba_opts.depth_sigma_rel);
+    (void)builder.init();
+    backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), true, true);
+    loop::KeyframeDatabase db(*map);
+    loop::Relocalizer relocalizer(loop::RelocalizerOptions{}, *map, db);
+    map::KeyframeJob job;
+    job.reserve(tracker.max_keypoints(), seq.width, seq.height);
+    std::uint64_t lost = 0;
+    for (const hal::Frame& f : frames) {
+      state.ResumeTiming();
+      const std::uint64_t a0 = platform::alloc::thread_allocations();
+      const std::int64_t t0 = platform::monotonic_now_ns();
+      const frontend::TrackingResult r = tracker.spin_once(f);
+      if (r.relocalization_request) tracker.fill_relocalization_request(f, req);
+      const std::int64_t t1 = platform::monotonic_now_ns();
+      const std::uint64_t a1 = platform::alloc::thread_allocations();
+      state.PauseTiming();
+      if (r.steady || r.state != frontend::TrackState::kTracked) {
+        const auto si = static_cast<std::size_t>(r.tracker_state);
+        ms[si].push_back(static_cast<double>(t1 - t0) * kNsToMs);
+        allocs[si] += a1 - a0;
+      }
+      if (r.state != frontend::TrackState::kTracked) ++lost;
+      if (r.relocalized && relocalized_after < 0.0) relocalized_after = static_cast<double>(lost);
+      if (r.relocalization_request) {
+        loop::RelocQuery q;
+        q.seq = req.seq;
+        q.t_ns = req.t_ns;
+        q.keypoints = std::span<const features::Keypoint>(req.keypoints.data(), req.count);
+        q.descriptors = std::span<const features::Descriptor>(req.descriptors.data(), req.count);
+        q.K = req.K;
+        const loop::RelocResult res = relocalizer.spin_once(q);
+        reloc_ms.push_back(res.ms);
+        frontend::RelocalizationHint hint;
+        hint.valid = res.success;
+        hint.seq = req.seq;
+        hint.T_c_w = res.T_c_w;
+        hint.keyframe = res.keyframe;
+        hint.generation = res.generation;
+        tracker.set_relocalization_hint(hint);
+      }
+      if (r.keyframe_job) {
+        tracker.fill_keyframe_job(f, job);
+        const depth::KeyframeBuildReport rep = builder.spin_once(job);
+        if (rep.ok) (void)ba.spin_once(rep.keyframe, job.K);
+      }
+    }
+    state.ResumeTiming();
+  }
+  for (std::size_t si = 0; si < kStates; ++si) {
+    const auto st = static_cast<frontend::TrackerState>(si);
+    if (st == frontend::TrackerState::kInitializing || st == frontend::TrackerState::kNewSegment) {
+      continue;
+    }
+    const std::string name = frontend::to_string(st);
+    const double n = ms[si].empty() ? 1.0 : static_cast<double>(ms[si].size());
+    state.counters[name + "_frames"] = static_cast<double>(ms[si].size());
+    state.counters[name + "_p50_ms"] = percentile(ms[si], 0.5);
+    state.counters[name + "_p99_ms"] = percentile(ms[si], 0.99);
+    state.counters[name + "_allocs_per_frame"] = static_cast<double>(allocs[si]) / n;
+  }
+  state.counters["relocalize_p50_ms"] = percentile(reloc_ms, 0.5);
+  state.counters["relocalize_p99_ms"] = percentile(reloc_ms, 0.99);
+  state.counters["relocalized_after"] = relocalized_after;
 }
 
 // Tracks `seq` in `mode` from an empty map with default options, builds every keyframe the
@@ -255,6 +377,7 @@ void bm_local_ba_abort(benchmark::State& state) {
 }  // namespace
 
 BENCHMARK(bm_tracking)->Unit(benchmark::kMillisecond)->Iterations(1);
+BENCHMARK(bm_tracking_kidnap)->Unit(benchmark::kMillisecond)->Iterations(1);
 BENCHMARK(bm_local_ba)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(1);
 BENCHMARK(bm_local_ba_abort)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->Iterations(1);
 
