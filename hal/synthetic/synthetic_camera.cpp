@@ -75,7 +75,6 @@ constexpr double kCorridorEndGap = 1.5;        // corridor: turn round this far 
 constexpr double kCorridorTurnS = 3.0;         // corridor: duration of the turn round, s
 constexpr double kCorridorWhite = 200.0;       // corridor: grey level of the painted walls
 constexpr double kKidnapLookS = 1.5;           // room_kidnap_unknown: looks round this long, s
-constexpr int kPhotoTilesHall = 4;             // photo textures: tiles per side in the hall
 constexpr int kMinMipSize = 8;                 // coarsest texture level, texels per side
 constexpr float kMinObliqueCos = 0.25F;        // obliquity taken into a pixel footprint at most 4x
 
