@@ -125,6 +125,10 @@ int main(int argc, char** argv) {
     info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
     info.accuracy_keyframes = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
                                                 "keyframes_final.txt");
+    for (const pipeline::SegmentStats& g : pipe.stats().segments) {
+      info.accuracy_segments.push_back(
+          app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(), g.trajectory));
+    }
     if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
       if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
                                                  info.final_trajectory);

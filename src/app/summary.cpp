@@ -114,6 +114,22 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     }
   };
   accuracy_json("accuracy", info.accuracy);
+  // Map segments: each in its own world frame until merged (none is merged yet).
+  j << "  \"segments\": [";
+  for (std::size_t i = 0; i < st.segments.size(); ++i) {
+    const pipeline::SegmentStats& g = st.segments[i];
+    j << (i ? ", " : "") << "{\"id\": " << g.id << ", \"frames\": " << g.frames
+      << ", \"keyframes\": " << g.keyframes << ", \"first_seq\": " << g.first_seq
+      << ", \"last_seq\": " << g.last_seq << ", \"trajectory\": " << json_string(g.trajectory)
+      << ", \"merged_into\": -1";  // -1: not merged (no merge yet)
+    if (i < info.accuracy_segments.size() && info.accuracy_segments[i].available) {
+      const AccuracyReport& a = info.accuracy_segments[i];
+      j << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
+        << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path);
+    }
+    j << "}";
+  }
+  j << "],\n";
   accuracy_json("accuracy_keyframes", info.accuracy_keyframes);
   if (info.final_trajectory_written) {
     const pipeline::FinalTrajectoryStats& f = info.final_trajectory;
@@ -248,6 +264,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   const pipeline::RelocalizationStats& rl = st.relocalization;
   j << "  \"relocalization\": {\"enabled\": " << (rl.enabled ? "true" : "false")
     << ", \"lost_spells\": " << tc.lost_spells << ", \"max_lost_frames\": " << tc.max_lost_frames
+    << ", \"new_segments\": " << tc.new_segments << ", \"segment_returns\": " << tc.segment_returns
     << ", \"requests\": " << tc.relocalization_requests << ", \"attempts\": " << rl.attempts
     << ", \"successes\": " << rl.successes << ", \"resumed\": " << tc.relocalized
     << ", \"skipped_busy\": " << rl.skipped_busy << ", \"timed_out\": " << rl.timed_out
@@ -310,6 +327,13 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
        << a.tracked_after_init_pct << " % after init\n";
   } else {
     os << "  ATE: " << info.accuracy.note << "\n";
+  }
+  if (st.segments.size() > 1 || (st.segments.size() == 1 && st.segments[0].id != 0)) {
+    os << "  map segments (each in its own world frame):";
+    for (const pipeline::SegmentStats& g : st.segments) {
+      os << " " << g.id << ": " << g.frames << " frames (" << g.trajectory << ")";
+    }
+    os << "\n";
   }
   if (info.accuracy_keyframes.available) {
     const AccuracyReport& a = info.accuracy_keyframes;

@@ -32,6 +32,8 @@ struct RunInfo {
   std::string error;                  ///< non-empty when the run failed
   AccuracyReport accuracy;            ///< ATE against the source's ground truth (when it had one)
   AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
+  /// ATE of each segment's own trajectory file, aligned on its own (PipelineStats::segments)
+  std::vector<AccuracyReport> accuracy_segments;
   bool final_trajectory_written = false;            ///< trajectory_final.txt was written
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
   AccuracyReport accuracy_final;    ///< ATE of trajectory_final.txt (frames on the final map)

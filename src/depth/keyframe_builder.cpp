@@ -652,6 +652,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
 
   // 3. Insert the keyframe with its local depth.
   map::KeyframeInput in;
+  in.segment = job.segment;
   in.seq = job.seq;
   in.t_ns = job.t_ns;
   in.T_w_c = job.T_w_c;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <mutex>
 
 #include "geometry/depth_sampling.h"
 #include "geometry/self_calibration.h"
@@ -193,6 +194,8 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
     stamp_[p] = frame_stamp_;
     map::PointView pv;
     if (!map_.read_point(p, pv)) return false;
+    // Another segment's points live in an unrelated world frame.
+    if (map_.keyframe_segment(pv.ref_keyframe) != segment_) return false;
     if (min_ref_t_ns > 0 && map_.keyframe_t_ns(pv.ref_keyframe) < min_ref_t_ns) return false;
     const auto c = static_cast<std::size_t>(num_cand_++);
     cand_id_[c] = p;
@@ -212,7 +215,9 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   // reused by a newer keyframe (whose points are as good a query).
   qt_keyframes_.clear();
   const map::KeyframeId newest = map_.newest_keyframe();
-  if (newest != map::kNoId) qt_keyframes_.push_back(newest);
+  if (newest != map::kNoId && map_.keyframe_segment(newest) == segment_) {
+    qt_keyframes_.push_back(newest);
+  }
   // Searched from a relocalizer's pose: the keyframe it was found against (the recent ones
   // saw another place).
   if (reloc_keyframe_ != map::kNoId && reloc_keyframe_ != newest &&
@@ -484,23 +489,73 @@ void Tracker::fix_focal_at_init(std::uint64_t seq) {
 // ---- State machine and relocalization ------------------------------------------------
 
 void Tracker::advance_state(TrackingResult& r) {
-  if (!initialized_) {
-    state_ = TrackerState::kInitializing;
-  } else if (r.state == TrackState::kTracked) {
+  if (r.state == TrackState::kTracked) {
     state_ = TrackerState::kTracking;
     lost_frames_ = 0;
+    last_tracked_t_ns_ = r.t_ns;
+  } else if (!initialized_ && segments_started_ == 1) {
+    state_ = TrackerState::kInitializing;  // the first map: nothing to relocalize against
   } else {
     if (lost_frames_ == 0) ++counters_.lost_spells;
     ++lost_frames_;
     counters_.max_lost_frames = std::max(counters_.max_lost_frames, lost_frames_);
-    state_ = relocalization_available_ &&
-                     lost_frames_ > static_cast<std::uint64_t>(opts_.relocalize_after_lost_frames)
-                 ? TrackerState::kRelocalizing
-                 : TrackerState::kLost;
+    if (initialized_) {
+      state_ = relocalization_available_ &&
+                       lost_frames_ > static_cast<std::uint64_t>(opts_.relocalize_after_lost_frames)
+                   ? TrackerState::kRelocalizing
+                   : TrackerState::kLost;
+      const double lost_s = static_cast<double>(r.t_ns - last_tracked_t_ns_) * 1e-9;
+      if (opts_.new_segments && lost_s >= opts_.new_segment_after_s &&
+          segments_started_ < opts_.max_segments) {
+        start_new_segment(r.seq);
+      }
+    }
+    if (!initialized_) state_ = TrackerState::kNewSegment;
   }
   r.tracker_state = state_;
-  r.relocalization_request = state_ == TrackerState::kRelocalizing;
+  r.segment = segment_;
+  r.relocalization_request = state_ == TrackerState::kRelocalizing ||
+                             (state_ == TrackerState::kNewSegment && relocalization_available_);
   if (r.relocalization_request) ++counters_.relocalization_requests;
+}
+
+void Tracker::start_new_segment(std::uint64_t seq) {
+  MER_LOG_INFO("frame %llu: lost for %llu frames without relocalizing; starting map segment %u",
+               static_cast<unsigned long long>(seq), static_cast<unsigned long long>(lost_frames_),
+               unsigned{segments_started_});
+  segment_ = segments_started_++;
+  ++counters_.new_segments;
+  initialized_ = false;
+  ref_valid_ = false;
+  plane_hints_.clear();
+  have_pose_ = false;
+  poor_prediction_ = true;
+  velocity_ = SE3d::Identity();
+  histogram_.clear();
+  for (KeyframeHistogram& h : recent_) h.clear();
+  recent_valid_ = 0;  // the dense backends' recent frames are in the old world frame
+  reloc_keyframe_ = map::kNoId;
+  force_keyframe_ = false;
+}
+
+bool Tracker::return_to_segment_of_hint() {
+  const std::uint16_t seg = map_.keyframe_segment(hint_.keyframe);
+  if (seg == map::kNoSegment || map_.keyframe_generation(hint_.keyframe) != hint_.generation) {
+    return false;
+  }
+  // The query's depth range: that keyframe's median keypoint depth (its segment's scale).
+  depth_scratch_.clear();
+  const std::uint32_t n = map_.keyframe_num_keypoints(hint_.keyframe);
+  for (std::uint32_t k = 0; k < n && depth_scratch_.size() < depth_scratch_.capacity(); ++k) {
+    const float d = map_.keyframe_depth(hint_.keyframe, k);
+    if (d > 0.0F) depth_scratch_.push_back(d);
+  }
+  if (!depth_scratch_.empty()) median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  if (seg != segment_) ++counters_.segment_returns;
+  segment_ = seg;
+  initialized_ = true;
+  ref_valid_ = false;
+  return true;
 }
 
 void Tracker::reserve_relocalization_request(RelocalizationRequest& req) const {
@@ -522,7 +577,10 @@ void Tracker::fill_relocalization_request(const hal::Frame& frame,
 }
 
 void Tracker::set_relocalization_hint(const RelocalizationHint& hint) {
-  if (!hint.valid || state_ != TrackerState::kRelocalizing) return;
+  if (!hint.valid ||
+      (state_ != TrackerState::kRelocalizing && state_ != TrackerState::kNewSegment)) {
+    return;
+  }
   hint_ = hint;
   ++counters_.relocalization_hints;
 }
@@ -532,7 +590,8 @@ void Tracker::set_relocalization_hint(const RelocalizationHint& hint) {
 bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   ++frames_since_init_;
   // A relocalizer's pose (a frame of this lost spell) replaces the last tracked pose.
-  const bool from_hint = hint_.valid && state_ == TrackerState::kRelocalizing;
+  const bool from_hint =
+      hint_.valid && (state_ == TrackerState::kRelocalizing || state_ == TrackerState::kNewSegment);
   reloc_keyframe_ = map::kNoId;
   if (from_hint) {
     T_c_w_ = hint_.T_c_w;
@@ -626,6 +685,7 @@ void Tracker::stop_reading() {
 }
 
 void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) const {
+  job.segment = segment_;
   job.seq = frame.seq;
   job.t_ns = frame.t_ns;
   job.T_w_c = last_T_w_c_;
@@ -798,7 +858,15 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
     conf0[static_cast<std::size_t>(init_ref_idx_[i])] = 1.0F;
     conf1[static_cast<std::size_t>(init_cur_idx_[i])] = 1.0F;
   }
+  // The map may have other writers by now (a later segment): never wait for them.
+  const std::unique_lock<platform::PiMutex> lock(map_.writer_lock(), std::try_to_lock);
+  if (!lock.owns_lock()) {
+    MER_LOG_DEBUG("frame %llu: initialization deferred (map busy)",
+                  static_cast<unsigned long long>(frame.seq));
+    return false;
+  }
   map::KeyframeInput k0;
+  k0.segment = segment_;
   k0.seq = ref_seq_;
   k0.t_ns = ref_t_ns_;
   k0.T_w_c = SE3d::Identity();
@@ -807,6 +875,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   k0.depth = depth0;
   k0.depth_confidence = conf0;
   map::KeyframeInput k1;
+  k1.segment = segment_;
   k1.seq = frame.seq;
   k1.t_ns = frame.t_ns;
   k1.T_w_c = T_w_c1;
@@ -848,9 +917,11 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   have_pose_ = true;
   poor_prediction_ = true;
   initialized_ = true;
+  if (!counters_.initialized) {
+    counters_.initialized_seq = frame.seq;
+    counters_.reference_seq = ref_seq_;
+  }
   counters_.initialized = true;
-  counters_.initialized_seq = frame.seq;
-  counters_.reference_seq = ref_seq_;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;
@@ -905,7 +976,15 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
     ++valid;
   }
   if (valid < opts_.init.rgbd_min_points) return false;
+  // The map may have other writers by now (a later segment): never wait for them.
+  const std::unique_lock<platform::PiMutex> lock(map_.writer_lock(), std::try_to_lock);
+  if (!lock.owns_lock()) {
+    MER_LOG_DEBUG("frame %llu: initialization deferred (map busy)",
+                  static_cast<unsigned long long>(frame.seq));
+    return false;
+  }
   map::KeyframeInput k0;
+  k0.segment = segment_;
   k0.seq = frame.seq;
   k0.t_ns = frame.t_ns;
   k0.T_w_c = SE3d::Identity();
@@ -940,9 +1019,11 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
   have_pose_ = true;
   poor_prediction_ = false;
   initialized_ = true;
+  if (!counters_.initialized) {
+    counters_.initialized_seq = frame.seq;
+    counters_.reference_seq = frame.seq;
+  }
   counters_.initialized = true;
-  counters_.initialized_seq = frame.seq;
-  counters_.reference_seq = frame.seq;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
   recent_[recent_next_] = histogram_;
@@ -984,7 +1065,10 @@ void Tracker::set_anchor(TrackingResult& r) const {
   // ORB-SLAM's reference keyframe, gave 10-40 % larger errors on room_orbit seeds 1, 2, 5.)
   const map::KeyframeId kf = map_.newest_keyframe();
   SE3d T_w_kf;
-  if (kf == map::kNoId || !map_.keyframe_pose(kf, T_w_kf)) return;
+  if (kf == map::kNoId || map_.keyframe_segment(kf) != segment_ ||
+      !map_.keyframe_pose(kf, T_w_kf)) {
+    return;
+  }
   r.has_anchor = true;
   r.anchor_t_ns = map_.keyframe_t_ns(kf);
   r.T_kf_c = T_w_kf.inverse() * r.T_w_c;
@@ -1025,6 +1109,10 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     while (platform::monotonic_now_ns() < until) {
     }
   }
+  // In a new segment, a relocalizer's pose returns to the segment it was found in.
+  const std::uint16_t segment_before = segment_;
+  const bool returning = !initialized_ && hint_.valid && state_ == TrackerState::kNewSegment;
+  if (returning && !return_to_segment_of_hint()) hint_.valid = false;
   if (!initialized_) {
     r.state = TrackState::kNotInitialized;
     if (mode_ == "rgbd") {
@@ -1036,7 +1124,10 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     advance_state(r);
     return r;
   }
-  (void)track(frame, r);
+  if (!track(frame, r) && returning) {
+    segment_ = segment_before;  // not found after all: go on initializing the new segment
+    initialized_ = false;
+  }
   if (r.state == TrackState::kTracked) set_anchor(r);
   advance_state(r);
   // Ring of recent tracked frames (dense depth of later keyframes).

@@ -14,12 +14,17 @@
 /// with depth (RGB-D). Lost frames are reported and, after
 /// `relocalize_after_lost_frames`, offered to the relocalizer (which runs outside tracking);
 /// a pose it finds is the prediction of the next frame (TrackerState: the state machine).
+/// Lost for `new_segment_after_s`, it initializes a new map segment (as at the start) and
+/// queries only that segment's points; a relocalization returns to the segment it found.
 ///
 /// Threading: reads the map lock-free as a registered reader (map.h, slot reclamation): each
 /// spin_once() starts with a quiescent point, and the ids it keeps across frames are either
 /// re-checked (recent keyframes) or handed on with their generation (keyframe jobs). Its map
-/// writes are at initialization, before any keyframe job has been queued (the map has no
-/// other writer yet), and the per-point visible / found statistics (relaxed atomic adds).
+/// writes are the initialization of a segment (the first keyframes and points) and the
+/// per-point visible / found statistics (relaxed atomic adds). It never waits for the map's
+/// writer lock: an initialization takes it with try_lock (uncontended for the first
+/// segment, before any keyframe job) and, when another writer holds it, is retried with the
+/// next frame.
 /// After init, spin_once() does not allocate.
 
 #include <cstdint>
@@ -90,6 +95,8 @@ struct TrackerCounters {
   std::uint64_t relocalized = 0;              ///< of those, tracked again from the pose
   std::uint64_t lost_spells = 0;              ///< times tracking went from tracked to lost
   std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
+  std::uint64_t new_segments = 0;             ///< map segments started after a lost spell
+  std::uint64_t segment_returns = 0;  ///< relocalized into another segment than the one lost in
   std::uint64_t sum_query_temporal = 0;
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
@@ -174,6 +181,12 @@ class Tracker {
   bool reference_too_old(std::int64_t t_ns) const;
   /// Updates the state machine after a frame (tracked or not) and fills r's state fields.
   void advance_state(TrackingResult& r);
+  /// Forgets the current segment's tracking state and initializes the next segment from the
+  /// next frames (tracking.new_segments).
+  void start_new_segment(std::uint64_t seq);
+  /// In state new_segment with a relocalizer's pose: back to that keyframe's segment (its
+  /// median keyframe depth as the query range). False when the keyframe is gone.
+  bool return_to_segment_of_hint();
   int match_reference();
   bool focal_from_reference(int matches);
   void update_focal(double f, std::uint64_t seq);
@@ -283,6 +296,10 @@ class Tracker {
   RelocalizationHint hint_;                      // pending pose from the relocalizer
   map::KeyframeId reloc_keyframe_ = map::kNoId;  // joins Q_T for the frame searched from a hint
   map::Generation reloc_generation_ = map::kNoGeneration;
+  // Map segments (tracking.new_segments).
+  std::uint16_t segment_ = 0;           // segment of the map tracked in (or being initialized)
+  std::uint16_t segments_started_ = 1;  // segments this run has started
+  std::int64_t last_tracked_t_ns_ = 0;  // capture time of the last tracked frame
 };
 
 }  // namespace mer::frontend

@@ -138,6 +138,9 @@ struct TrackingOptions {
   int min_inliers = 25;            ///< fewer PnP inliers: the frame is lost
   int relocalize_after_lost_frames = 2;  ///< lost frames searched from the last pose only,
                                          ///< before relocalization is asked for as well
+  bool new_segments = true;              ///< start a new map segment after a long lost spell
+  double new_segment_after_s = 0.5;      ///< lost this long (no relocalization): new segment, s
+  int max_segments = 64;                 ///< map segments a run may start (the first included)
   int busy_work_us = 0;  ///< extra busy-wait per frame, us (load tests of the drop policy)
   double rgbd_max_depth_step = 0.03;  ///< sensor depth at a keypoint: relative step across its
                                       ///< 2x2 pixels above which it is a depth edge (refused)
@@ -173,6 +176,17 @@ struct TrackingOptions {
             "radius) before each next lost frame is also offered to the relocalizer "
             "(relocalization.*; 0: from the first lost frame)",
             options::Range<int>{0, 100000});
+    v.field("new_segments", new_segments,
+            "when tracking has been lost for new_segment_after_s without relocalizing, "
+            "initialize a new map segment (its own world frame) instead of staying lost; the "
+            "relocalizer keeps looking for the earlier segments meanwhile");
+    v.field("new_segment_after_s", new_segment_after_s,
+            "time since the last tracked frame after which a new map segment is started, s",
+            options::Range<double>{0.0, 1e6});
+    v.field("max_segments", max_segments,
+            "map segments a run may have, the first included; once reached, tracking stays "
+            "lost (relocalizing) instead",
+            options::Range<int>{1, 1000});
     v.field("busy_work_us", busy_work_us,
             "extra busy-wait per frame, us (simulates a heavier tracker; 0 in normal use)",
             options::Range<int>{0, 10000000});

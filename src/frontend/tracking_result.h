@@ -38,7 +38,10 @@ constexpr const char* to_string(TrackState s) {
 /// - relocalizing: localization has failed for that many frames; each frame is also offered to
 ///   the relocalizer (retrieval of keyframes by the frame's descriptors, PnP-RANSAC), and a pose
 ///   it finds is the prediction of the next frame's search;
-/// - new_segment: a new map segment is being initialized (reserved: not entered yet).
+/// - new_segment: tracking was lost for `tracking.new_segment_after_s` without relocalizing: a
+///   new map segment, with a world frame of its own, is being initialized (as at the start),
+///   while each frame is still offered to the relocalizer. A relocalization returns to the
+///   segment of the keyframe found; an initialization continues in the new segment.
 enum class TrackerState : std::uint8_t {
   kInitializing = 0,
   kTracking = 1,
@@ -100,6 +103,7 @@ struct TrackingResult {
   /// features are still the tracker's (before its next spin_once).
   bool relocalization_request = false;
   bool relocalized = false;       ///< tracked from a relocalizer's pose (after a lost spell)
+  std::uint16_t segment = 0;      ///< map segment whose world frame T_w_c is in (0: the first)
   bool is_keyframe = false;       ///< this frame became a keyframe
   bool keyframe_job = false;      ///< the keyframe still has to be created (queue a job)
   SE3d T_w_c = SE3d::Identity();  ///< camera-to-world pose (valid when tracked)

@@ -204,8 +204,11 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   db_.refresh_live();  // key frequencies first
   const std::span<const double> key_scores = db_.score_keyframe(kf);
   const map::KeyframeId n = map_.num_keyframes();
+  const std::uint16_t segment = map_.keyframe_segment(kf);
   for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
-    if (id == kf || !map_.keyframe_is_live(id) ||
+    // Another segment's keyframes are in an unrelated world frame: a match with one is a
+    // merge of two segments, not a loop within one.
+    if (id == kf || !map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment ||
         map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial) {
       continue;
     }

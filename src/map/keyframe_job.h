@@ -23,6 +23,7 @@ struct KeyframeJob {
   geometry::Pinhole K;                        ///< intrinsics the frame was tracked with
   int num_keypoints = 0;                      ///< valid entries in the arrays below
   std::uint8_t reason = 0;                    ///< frontend::KeyframeReason that fired (for logs)
+  std::uint16_t segment = 0;                  ///< map segment the frame was tracked in
   std::vector<features::Keypoint> keypoints;  ///< capacity = max keypoints
   std::vector<features::Descriptor> descriptors;  ///< one per keypoint
   std::vector<std::uint32_t> point_ids;           ///< tracked map point per keypoint, or kNoId

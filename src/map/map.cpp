@@ -271,6 +271,7 @@ Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
   KeyframeSlot& s = kfs_[id];
   s.seq = in.seq;
   s.t_ns = in.t_ns;
+  s.segment = in.segment;
   s.num_keypoints = static_cast<std::uint32_t>(n);
   const std::size_t base = kp_index(id, 0);
   std::copy(in.keypoints.begin(), in.keypoints.end(), &kf_keypoints_[base]);
@@ -670,10 +671,11 @@ KeyframeId Map::newest_keyframe() const noexcept {
   return newest_kf_.load(std::memory_order_acquire);
 }
 
-std::vector<StampedPose> Map::live_keyframe_poses() const {
+std::vector<StampedPose> Map::live_keyframe_poses(std::uint16_t segment) const {
   std::vector<StampedPose> poses;
   const KeyframeId n = num_keyframes();
   for (KeyframeId id = 0; id < n; ++id) {
+    if (segment != kNoSegment && keyframe_segment(id) != segment) continue;
     SE3d T;
     if (keyframe_is_live(id) && keyframe_pose(id, T)) poses.push_back({keyframe_t_ns(id), T});
   }
@@ -740,6 +742,10 @@ std::int64_t Map::keyframe_t_ns(KeyframeId kf) const noexcept {
 
 std::uint64_t Map::keyframe_seq(KeyframeId kf) const noexcept {
   return live_keyframe(kf) ? kfs_[kf].seq : 0U;
+}
+
+std::uint16_t Map::keyframe_segment(KeyframeId kf) const noexcept {
+  return live_keyframe(kf) ? kfs_[kf].segment : kNoSegment;
 }
 
 PointId Map::keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept {

@@ -12,11 +12,10 @@
 ///    adjustment and culling (back-end thread, high priority) and offline steps (final BA).
 ///    The lock orders them: each writer sees everything earlier holders wrote, so writer-side
 ///    state needs no atomics. The writer methods themselves never block. The tracking thread
-///    NEVER takes the lock: it only reads (below). Its one-time map initialization (the first
-///    keyframes and points) writes without the lock before it queues any keyframe job, when
-///    no other writer can run yet; the job ring's release / acquire orders those writes
-///    before the keyframe builder's. A program with one writer thread only (unit tests,
-///    offline tools) need not take the lock.
+///    NEVER waits for the lock: it only reads (below), except when it initializes a map
+///    segment (the first keyframes and points), which it does under try_lock() and retries
+///    with a later frame when another writer holds the lock. A program with one writer
+///    thread only (unit tests, offline tools) need not take the lock.
 ///  - A writer that drops the lock in the middle of its work (local BA releases it while
 ///    Ceres solves) holds only ids with their generations across the gap and revalidates
 ///    them when it takes the lock again: another writer may have added, moved or freed
@@ -147,6 +146,7 @@ struct KeyframeInput {
   std::span<const features::Descriptor> descriptors;  ///< one per keypoint
   std::span<const float> depth;             ///< per keypoint camera z (0: unknown); may be empty
   std::span<const float> depth_confidence;  ///< per keypoint, may be empty (0)
+  std::uint16_t segment = 0;  ///< map segment (frontend: a new one after a long lost spell)
 };
 
 /// A consistent snapshot of a map point.
@@ -309,9 +309,10 @@ class Map {
   /// Live keyframes / points (relaxed snapshots).
   std::uint32_t live_keyframes() const noexcept;
   std::uint32_t live_points() const noexcept;
-  /// Every live keyframe's capture time and pose, sorted by time. Allocates: not for the
-  /// real-time threads (outputs and offline tools read it once the stages have stopped).
-  std::vector<StampedPose> live_keyframe_poses() const;
+  /// Every live keyframe's capture time and pose, sorted by time; only those of `segment`
+  /// unless it is kNoSegment. Allocates: not for the real-time threads (outputs and offline
+  /// tools read it once the stages have stopped).
+  std::vector<StampedPose> live_keyframe_poses(std::uint16_t segment = kNoSegment) const;
   /// True for a live keyframe.
   bool keyframe_is_live(KeyframeId kf) const noexcept;
   /// Generation of a live keyframe, kNoGeneration otherwise.
@@ -335,6 +336,10 @@ class Map {
   std::int64_t keyframe_t_ns(KeyframeId kf) const noexcept;
   /// Frame sequence number of kf (0 for an unknown id).
   std::uint64_t keyframe_seq(KeyframeId kf) const noexcept;
+  /// Map segment of kf (KeyframeInput::segment; kNoSegment for an unknown id). A segment's
+  /// keyframes and points share one world frame, unrelated to another segment's until the two
+  /// are merged; its points are those whose reference keyframe is in it.
+  std::uint16_t keyframe_segment(KeyframeId kf) const noexcept;
   /// Point associated with keypoint kp of kf, kNoId if none.
   PointId keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept;
   /// Depth (camera z, map units; 0: unknown) of keypoint kp of kf.
@@ -409,6 +414,7 @@ class Map {
     std::uint64_t seq = 0;  // immutable while live
     std::int64_t t_ns = 0;
     std::uint32_t num_keypoints = 0;
+    std::uint16_t segment = 0;
     std::atomic<std::uint32_t> state{0};  // generation << 1 | live
     SeqLock pose_lock;
     std::atomic<std::uint64_t> pose[kPoseWords] = {};

@@ -19,5 +19,7 @@ using Generation = std::uint32_t;  ///< occupant of a slot: incremented when the
 inline constexpr std::uint32_t kNoId = 0xFFFFFFFFu;
 /// Generation reported for a free or unknown slot (never a live occupant's).
 inline constexpr Generation kNoGeneration = 0xFFFFFFFFu;
+/// Map segment reported for an unknown keyframe (never a live keyframe's).
+inline constexpr std::uint16_t kNoSegment = 0xFFFFu;
 
 }  // namespace mer::map

@@ -72,8 +72,17 @@ Status OutputStage::open_file(File& file, const std::string& path, const char* h
 
 Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   opts_ = opts;
+  dir_ = dir;
   if (dir.empty()) return Status::ok();
   const std::filesystem::path d(dir);
+  // Segment files of an earlier run in the same directory would read as this run's.
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(d, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.starts_with("trajectory_segment_") || name.starts_with("keyframes_segment_")) {
+      std::filesystem::remove(e.path(), ec);
+    }
+  }
   Status s = open_file(trajectory_, (d / "trajectory.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(keyframes_, (d / "keyframes.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(ground_truth_, (d / "groundtruth.txt").string(), nullptr);
@@ -81,7 +90,7 @@ Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   if (s.is_ok()) {
     s = open_file(frames_csv_, (d / "frames.csv").string(),
                   "seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,query_s,"
-                  "query_total,keyframe_reason,kl,focal,tracker_state\n");
+                  "query_total,keyframe_reason,kl,focal,tracker_state,segment\n");
   }
   if (s.is_ok()) {
     s = open_file(latency_csv_, (d / "latency.csv").string(),
@@ -95,7 +104,15 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   ++frames_;
   if (trajectory_.f == nullptr) return platform::monotonic_now_ns() - t0;
   std::array<char, kLineBuffer> line{};
-  if (r.state == frontend::TrackState::kTracked) {
+  if (r.state == frontend::TrackState::kTracked && r.segment != 0) {
+    const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
+    if (File* f = segment_file(r.segment, false); f != nullptr) {
+      std::fwrite(line.data(), 1, static_cast<std::size_t>(n), f->f);
+    }
+    if (File* f = r.is_keyframe ? segment_file(r.segment, true) : nullptr; f != nullptr) {
+      std::fwrite(line.data(), 1, static_cast<std::size_t>(n), f->f);
+    }
+  } else if (r.state == frontend::TrackState::kTracked) {
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
@@ -110,13 +127,14 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   }
   char t_s[32];
   format_seconds(t_s, sizeof t_s, r.t_ns);
-  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx,%d,%d,%d,%d,%d,%s,%.4f,%.3f,%s\n",
+  std::fprintf(frames_csv_.f, "%llu,%s,%s,%d,%d,%016llx,%d,%d,%d,%d,%d,%s,%.4f,%.3f,%s,%u\n",
                static_cast<unsigned long long>(r.seq), t_s, frontend::to_string(r.state),
                r.is_keyframe ? 1 : 0, r.num_features,
                static_cast<unsigned long long>(r.feature_hash), r.num_matches, r.num_inliers,
                r.query_temporal, r.query_spatial, r.query_total,
                frontend::to_string(static_cast<frontend::KeyframeReason>(r.keyframe_reason)),
-               static_cast<double>(r.kl), r.focal, frontend::to_string(r.tracker_state));
+               static_cast<double>(r.kl), r.focal, frontend::to_string(r.tracker_state),
+               unsigned{r.segment});
   if (frames_ % static_cast<std::uint64_t>(opts_.flush_every) == 0) flush_all();
   const std::int64_t out_ns = platform::monotonic_now_ns() - t0;
   using S = frontend::StageId;
@@ -130,10 +148,27 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   return out_ns;
 }
 
+OutputStage::File* OutputStage::segment_file(std::uint16_t s, bool keyframes) {
+  const std::size_t i = 2 * (std::size_t{s} - 1) + (keyframes ? 1 : 0);
+  if (segment_files_.size() <= i) segment_files_.resize(2 * std::size_t{s});
+  File& f = segment_files_[i];
+  if (f.f == nullptr && f.path.empty()) {
+    const std::string name = std::string(keyframes ? "keyframes" : "trajectory") + "_segment_" +
+                             std::to_string(s) + ".txt";
+    if (!open_file(f, (std::filesystem::path(dir_) / name).string(), nullptr).is_ok()) {
+      write_error_ = true;  // reported by close(), like any write error
+    }
+  }
+  return f.f != nullptr ? &f : nullptr;
+}
+
 void OutputStage::flush_all() {
   for (File* f :
        {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_}) {
     if (f->f != nullptr && (std::fflush(f->f) != 0 || std::ferror(f->f) != 0)) write_error_ = true;
+  }
+  for (File& f : segment_files_) {
+    if (f.f != nullptr && (std::fflush(f.f) != 0 || std::ferror(f.f) != 0)) write_error_ = true;
   }
 }
 
@@ -148,6 +183,14 @@ Status OutputStage::close() {
       if (result.is_ok()) result = runtime_error("error writing '" + f->path + "'");
     }
     f->f = nullptr;
+  }
+  for (File& f : segment_files_) {
+    if (f.f == nullptr) continue;
+    const bool bad = std::ferror(f.f) != 0;
+    if ((std::fclose(f.f) != 0 || bad) && result.is_ok()) {
+      result = runtime_error("error writing '" + f.path + "'");
+    }
+    f.f = nullptr;
   }
   if (write_error_ && result.is_ok()) result = runtime_error("error writing output files");
   return result;

@@ -5,21 +5,27 @@
 /// `flush_every` frames and at close, so a stop loses nothing already processed.
 ///
 /// Files (in the --output directory):
-/// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every tracked frame
-/// - keyframes.txt   same format, keyframes only
+/// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every frame tracked in
+///                   map segment 0 (the first map)
+/// - keyframes.txt   same format, keyframes only (segment 0)
+/// - trajectory_segment_N.txt, keyframes_segment_N.txt: the same for map segment N >= 1
+///                   (tracking.new_segments), each in that segment's own world frame; created
+///                   when the segment tracks its first frame (files of an earlier run removed)
 /// - groundtruth.txt same format, the true pose of every frame whose source knew it
 /// - frame_anchors.txt `t kf_t tx ty tz qx qy qz qw`: every tracked frame's pose relative to
 ///                   the keyframe (stamp kf_t) it was anchored to, T_kf_c; kf_t is `-` and the
-///                   pose T_w_c for a frame tracked before any keyframe existed. mer_slam
+///                   pose T_w_c for a frame tracked before any keyframe existed (segment 0
+///                   only). mer_slam
 ///                   re-anchors them to the final map (final_trajectory.h).
 /// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,
-///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state` for every
+///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state,segment` for every
 ///                   processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
 
 #include <cstdint>
 #include <cstdio>
 #include <string>
+#include <vector>
 
 #include "core/status.h"
 #include "frontend/tracking_result.h"
@@ -54,6 +60,8 @@ class OutputStage {
     std::string path;
   };
   Status open_file(File& file, const std::string& path, const char* header);
+  // The trajectory and keyframe files of segment s >= 1 (opened on first use; null on error).
+  File* segment_file(std::uint16_t s, bool keyframes);
   void flush_all();
 
   OutputOptions opts_;
@@ -63,6 +71,8 @@ class OutputStage {
   File anchors_;       // tracked frames relative to their anchor keyframe
   File frames_csv_;
   File latency_csv_;
+  std::string dir_;
+  std::vector<File> segment_files_;  // [2 (s - 1)]: trajectory, [2 (s - 1) + 1]: keyframes
   std::uint64_t frames_ = 0;
   bool write_error_ = false;
 };

@@ -160,6 +160,7 @@ Status Pipeline::init(const std::string& output_dir) {
     tracker_->enable_relocalization(true);
   }
   stats_.relocalization.enabled = relocalizer_ != nullptr;
+  segment_stats_.assign(static_cast<std::size_t>(config_.tracking.max_segments), SegmentStats{});
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;
@@ -260,13 +261,14 @@ backend::GroundTruthCheckReport Pipeline::check_against_groundtruth(
 }
 
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
-  return resolve_keyframe_poses(map_->live_keyframe_poses(), culler_->lineage());
+  // Segment 0's: trajectory.txt's world frame (the other segments have their own).
+  return resolve_keyframe_poses(map_->live_keyframe_poses(0), culler_->lineage());
 }
 
 Status Pipeline::write_final_keyframes() const {
   if (output_dir_.empty()) return Status::ok();
   // Every stage has stopped: reading the map here races with nobody.
-  const std::vector<StampedPose> poses = map_->live_keyframe_poses();
+  const std::vector<StampedPose> poses = map_->live_keyframe_poses(0);  // as trajectory.txt
   const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));
@@ -302,6 +304,15 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.depth_backend = std::string(builder_->backend_name());
   stats_.backend_depth_edges = ba_->depth_edge_mode();
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
+  stats_.segments.clear();
+  for (std::size_t i = 0; i < segment_stats_.size(); ++i) {
+    SegmentStats g = segment_stats_[i];
+    if (g.frames == 0) continue;
+    g.id = static_cast<std::uint16_t>(i);
+    g.keyframes = map_->live_keyframe_poses(g.id).size();
+    g.trajectory = i == 0 ? "trajectory.txt" : "trajectory_segment_" + std::to_string(i) + ".txt";
+    stats_.segments.push_back(g);
+  }
   stats_.tracking_allocs_by_state.clear();
   for (std::size_t i = 0; i < allocs_by_state_.size(); ++i) {
     ThreadAllocs a = allocs_by_state_[i];
@@ -404,6 +415,11 @@ void Pipeline::count_state_allocs(const frontend::TrackingResult& r, std::uint64
 void Pipeline::count_result(const frontend::TrackingResult& r) {
   ++stats_.frames_processed;
   if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
+  if (r.state == frontend::TrackState::kTracked && r.segment < segment_stats_.size()) {
+    SegmentStats& g = segment_stats_[r.segment];
+    if (g.frames++ == 0) g.first_seq = r.seq;
+    g.last_seq = r.seq;
+  }
   if (r.steady) ++stats_.steady_frames;
   for (std::size_t i = 0; i < lat_steps_.size(); ++i) {
     if (r.steady) lat_steps_[i]->record(r.seq, r.t_ns, r.step_ns[i]);

@@ -122,6 +122,16 @@ struct FinalBaStats {
   double ms = 0.0;
 };
 
+/// One map segment of a run (summary.json `segments`; tracking.new_segments).
+struct SegmentStats {
+  std::uint16_t id = 0;
+  std::uint64_t frames = 0;     ///< frames tracked in it
+  std::uint64_t keyframes = 0;  ///< its keyframes alive in the map at the end
+  std::uint64_t first_seq = 0;  ///< first frame tracked in it
+  std::uint64_t last_seq = 0;   ///< last frame tracked in it
+  std::string trajectory;       ///< file holding its frames (trajectory.txt for segment 0)
+};
+
 /// What relocalization did over a run (summary.json `relocalization`).
 struct RelocalizationStats {
   bool enabled = false;
@@ -154,6 +164,7 @@ struct PipelineStats {
   backend::CullingTotals culling;            ///< map culling totals
   mer::loop::LoopTotals loop;                ///< loop closure totals
   RelocalizationStats relocalization;        ///< relocalization attempts and successes
+  std::vector<SegmentStats> segments;        ///< map segments that tracked a frame, by id
   map::MapCounters map;                      ///< slots live / used / reused at the end
   std::string depth_backend;                 ///< depth inference backend in use
   std::string backend_depth_edges;           ///< 3D-3D edge mode of the back end in use
@@ -261,6 +272,7 @@ class Pipeline {
   ThreadAllocs allocs_capture_{"capture"};
   ThreadAllocs allocs_tracking_{"tracking"};
   std::array<ThreadAllocs, 5> allocs_by_state_{};  ///< per frontend::TrackerState
+  std::vector<SegmentStats> segment_stats_;        ///< per segment id (sized at init)
   void count_state_allocs(const frontend::TrackingResult& r, std::uint64_t allocations);
   ThreadAllocs allocs_output_{"output"};
   PipelineStats stats_;

@@ -166,6 +166,32 @@ TEST(Map, AddKeyframeStoresEverything) {
   EXPECT_EQ(scale, 1.5);
 }
 
+TEST(Map, KeyframesKeepTheirSegmentAndPosesListByIt) {
+  Map m(small_options());
+  const KfData d = make_kf(4, 1);
+  KeyframeInput a = d.input(pose_at(0.0, 0.0), 10);
+  KeyframeInput b = d.input(pose_at(1.0, 0.1), 20);
+  b.segment = 1;
+  KeyframeInput c = d.input(pose_at(2.0, 0.2), 30);
+  const KeyframeId ka = m.add_keyframe(a).value();
+  const KeyframeId kb = m.add_keyframe(b).value();
+  const KeyframeId kc = m.add_keyframe(c).value();
+  EXPECT_EQ(m.keyframe_segment(ka), 0);
+  EXPECT_EQ(m.keyframe_segment(kb), 1);
+  EXPECT_EQ(m.keyframe_segment(kc), 0);
+  EXPECT_EQ(m.keyframe_segment(7), kNoSegment) << "a free slot has no segment";
+  EXPECT_EQ(m.keyframe_segment(kNoId), kNoSegment);
+  EXPECT_EQ(m.live_keyframe_poses().size(), 3U);
+  const std::vector<StampedPose> s0 = m.live_keyframe_poses(0);
+  ASSERT_EQ(s0.size(), 2U);
+  EXPECT_EQ(s0[0].t_ns, 10000);
+  EXPECT_EQ(s0[1].t_ns, 30000);
+  const std::vector<StampedPose> s1 = m.live_keyframe_poses(1);
+  ASSERT_EQ(s1.size(), 1U);
+  EXPECT_EQ(s1[0].t_ns, 20000);
+  EXPECT_TRUE(m.live_keyframe_poses(2).empty());
+}
+
 TEST(Map, KeypointMoveChangesOnlyThatKeypoint) {
   Map m(small_options());
   const KfData d = make_kf(10, 1);
