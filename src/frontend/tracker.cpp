@@ -551,7 +551,6 @@ bool Tracker::return_to_segment_of_hint() {
     if (d > 0.0F) depth_scratch_.push_back(d);
   }
   if (!depth_scratch_.empty()) median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
-  if (seg != segment_) ++counters_.segment_returns;
   segment_ = seg;
   initialized_ = true;
   ref_valid_ = false;
@@ -1124,9 +1123,12 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     advance_state(r);
     return r;
   }
-  if (!track(frame, r) && returning) {
+  const bool tracked = track(frame, r);
+  if (returning && !tracked) {
     segment_ = segment_before;  // not found after all: go on initializing the new segment
     initialized_ = false;
+  } else if (returning && segment_ != segment_before) {
+    ++counters_.segment_returns;
   }
   if (r.state == TrackState::kTracked) set_anchor(r);
   advance_state(r);

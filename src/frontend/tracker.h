@@ -96,7 +96,7 @@ struct TrackerCounters {
   std::uint64_t lost_spells = 0;              ///< times tracking went from tracked to lost
   std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
   std::uint64_t new_segments = 0;             ///< map segments started after a lost spell
-  std::uint64_t segment_returns = 0;  ///< relocalized into another segment than the one lost in
+  std::uint64_t segment_returns = 0;  ///< from new_segment, relocalized into an earlier segment
   std::uint64_t sum_query_temporal = 0;
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
