@@ -6,7 +6,11 @@
 # Other commands:
 #   tools/dev.sh setup              apt-get install the missing build dependencies
 #   tools/dev.sh build [preset]     configure + build (presets: default release asan tsan arm64)
-#   tools/dev.sh test [preset]      setup + build + ctest (tsan: the 'concurrency' tests)
+#   tools/dev.sh test [preset] [tier]
+#                                   setup + build + ctest. Tiers (CTest labels): unit (the fast
+#                                   edit-compile-test loop), replay, concurrency, hw, fuzz,
+#                                   lint, bench; default: all. Presets: asan runs the unit and
+#                                   fuzz tiers under ASan + UBSan, tsan the concurrency tier
 #   tools/dev.sh lint               clang-format + clang-tidy checks (also run by ctest)
 #   tools/dev.sh bench              build Release and run the Google Benchmark suite
 set -euo pipefail
@@ -26,6 +30,8 @@ PACKAGES=(
   # photo textures of the synthetic camera (camera.synthetic.texture: photo)
   mate-backgrounds
   clang-format clang-tidy
+  # tools/results.sh reads the runs' summary.json and the benchmarks' JSON
+  jq
   # real-driver tests (label 'hw'): a stock Debian kernel booted in qemu
   qemu-system-x86 busybox-static cpio xz-utils kmod
   libcamera-ipa gcc-12 libelf1 libssl3
@@ -62,12 +68,29 @@ build() {
   cmake --build --preset "$preset" -j "$JOBS" "$@"
 }
 
+PRESETS=(default release asan tsan arm64)
+TIERS=(unit replay concurrency hw fuzz lint bench)
+
 run_tests() {
-  local preset="${1:-default}"
+  local preset=default tier="" a
+  for a in "$@"; do
+    if [[ " ${PRESETS[*]} " == *" $a "* ]]; then
+      preset="$a"
+    elif [[ " ${TIERS[*]} " == *" $a "* ]]; then
+      tier="$a"
+    else
+      echo "dev.sh: test: '$a' is neither a preset (${PRESETS[*]}) nor a tier (${TIERS[*]})" >&2
+      exit 2
+    fi
+  done
   setup
   build "$preset"
-  log "ctest preset '$preset'"
-  ctest --preset "$preset" --output-on-failure -j "$JOBS"
+  local filter=()
+  [ -z "$tier" ] || filter=(-L "^${tier}\$")
+  log "ctest preset '$preset'${tier:+, tier '$tier'}"
+  local start=$SECONDS
+  ctest --preset "$preset" --output-on-failure -j "$JOBS" "${filter[@]}"
+  log "tests took $((SECONDS - start)) s"
 }
 
 demo() {
@@ -99,9 +122,9 @@ shift || true
 case "$cmd" in
   setup) setup ;;
   build) setup; build "${1:-default}" ;;
-  test) run_tests "${1:-default}" ;;
+  test) run_tests "$@" ;;
   demo) demo ;;
   lint) setup; lint ;;
   bench) bench ;;
-  *) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; [ "$cmd" = help ] || exit 2 ;;
+  *) sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'; [ "$cmd" = help ] || exit 2 ;;
 esac

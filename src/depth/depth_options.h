@@ -198,7 +198,7 @@ struct DepthOptions {
             "views' relative pose) aligns best, and a new point's keypoints in older keyframes "
             "likewise, so every keyframe measures the same surface point rather than each its "
             "own detection (map.max_points anchor patches of about 300 bytes are allocated "
-            "when on; see README, keypoint alignment)");
+            "when on; see docs/keypoint-alignment.md)");
     v.field("align_max_shift_px", align_max_shift_px,
             "an alignment that moves a keypoint farther than this (px of its pyramid level) is "
             "refused and the detection kept",

@@ -169,7 +169,11 @@ TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
   EXPECT_GT(s.culling.culled_keyframes, 0U) << "capacity rule";
   EXPECT_GT(s.map.reused_keyframe_slots, 0U) << "slots freed by the back end reused by the builder";
   EXPECT_LE(s.map.live_keyframes, 12U);
-  EXPECT_LT(s.frames_lost, s.frames_processed) << "frames tracked";
+  // RGB-D maps from the first frame and the camera orbits a textured room: nearly every frame
+  // is tracked (0 lost when measured, threaded and under TSan on a loaded machine); culling
+  // or slot reuse that broke the tracker's map would lose many.
+  EXPECT_GT(s.frames_processed, 0U);
+  EXPECT_LE(s.frames_lost * 10, s.frames_processed) << "at most 10 % of the frames lost";
   ASSERT_EQ(s.threads.size(), 5U);
 }
 
@@ -196,7 +200,14 @@ TEST(PipelineThreaded, LoopClosureRunsBesideTracking) {
   EXPECT_EQ(s.frames_processed + s.frames_dropped, s.frames_in);
   EXPECT_EQ(r.pool_available, r.pool_capacity);
   EXPECT_GT(s.loop.keyframes_checked, 0U) << "the loop closer ran on the back-end thread";
-  EXPECT_LT(s.frames_lost, s.frames_processed) << "frames tracked";
+  // The orbit comes back to its start: the loop is found and closed (7-9 closures when
+  // measured), and the tracker keeps following the corrected map. Lost frames measured: 0 of
+  // 400 threaded, 28 of 223 under TSan on a loaded machine (177 frames dropped, so larger
+  // steps between the frames tracked); a tracker that stopped following the corrections
+  // would lose every frame after the first closure, about half of the run.
+  EXPECT_GE(s.loop.loops_closed, 1U) << "the revisit closes a loop";
+  EXPECT_GT(s.frames_processed, 0U);
+  EXPECT_LE(s.frames_lost * 4, s.frames_processed) << "at most 25 % of the frames lost";
 }
 
 }  // namespace

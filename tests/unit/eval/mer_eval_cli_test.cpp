@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "eval_fixtures.h"
+#include "support/required_data.h"
 #include "support/run_command.h"
 
 namespace mer::eval {
@@ -57,7 +58,7 @@ TEST(MerEvalCli, NoPairsExit4) {
 
 TEST(MerEvalCli, JsonOnReferenceData) {
   const std::string dir = test::trajectories_dir();
-  if (dir.empty()) GTEST_SKIP() << "reference trajectories not found (set MER_SOURCE_DIR)";
+  MER_REQUIRE_DATA(!dir.empty()) << "reference trajectories not found (set MER_SOURCE_DIR)";
   const auto r =
       run_command(exe() + " --gt " + quote(dir + "/fr2_desk_groundtruth.txt") + " --est " +
                   quote(dir + "/fr2_desk_ORB.txt") + " --align se3 --max-dt 0.02 --json");

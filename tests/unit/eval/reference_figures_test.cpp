@@ -6,6 +6,7 @@
 
 #include "eval_fixtures.h"
 #include "hal/ground_truth.h"
+#include "support/required_data.h"
 #include "trajectory_eval.h"
 
 namespace mer::eval {
@@ -23,10 +24,10 @@ hal::Trajectory load_kitti(const std::string& name) {
   return r.is_ok() ? std::move(r).value() : hal::Trajectory{};
 }
 
-#define SKIP_WITHOUT_DATA()                                                           \
-  if (test::trajectories_dir().empty())                                               \
-  GTEST_SKIP() << "reference trajectories not found ($MER_SOURCE_DIR/../shared/data/" \
-                  "trajectories); set MER_SOURCE_DIR to the checkout"
+#define SKIP_WITHOUT_DATA()                                                                 \
+  MER_REQUIRE_DATA(!test::trajectories_dir().empty())                                       \
+      << "reference trajectories not found ($MER_SOURCE_DIR/../shared/data/trajectories); " \
+         "set MER_SOURCE_DIR to the checkout"
 
 void check_tum(double max_dt_s, std::size_t pairs, double rmse) {
   const hal::Trajectory gt = load_tum("fr2_desk_groundtruth.txt");

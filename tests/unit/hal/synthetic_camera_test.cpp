@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "platform/alloc_counter.h"
+#include "support/required_data.h"
 
 namespace mer::hal {
 namespace {
@@ -331,10 +332,8 @@ bool have_photos() {
 }
 
 #define SKIP_WITHOUT_PHOTOS()                                                            \
-  if (!have_photos()) {                                                                  \
-    GTEST_SKIP() << kDefaultPhotoDir << " is missing: apt-get install " << kPhotoPackage \
-                 << " (tools/dev.sh setup installs it)";                                 \
-  }
+  MER_REQUIRE_DATA(have_photos()) << kDefaultPhotoDir << " is missing: apt-get install " \
+                                  << kPhotoPackage << " (tools/dev.sh setup installs it)"
 
 std::uint64_t fnv1a(const cv::Mat& m) {
   std::uint64_t h = 1469598103934665603ULL;
@@ -402,7 +401,7 @@ TEST(SyntheticCamera, ExistingScenariosUnchangedByDefault) {
     SyntheticCamera cam(e.scenario, o, false);
     ASSERT_TRUE(cam.open(2).is_ok());
     ASSERT_TRUE(cam.start().is_ok());
-    EXPECT_TRUE(cam.photo_files().empty()) << e.scenario << ": auto stays procedural";
+    EXPECT_TRUE(cam.photo_files().empty()) << e.scenario << "auto stays procedural";
     std::size_t k = 0;
     for (int i = 0; i <= 290; ++i) {
       FrameHandle f;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "replay_fixtures.h"
+#include "support/required_data.h"
 
 namespace mer::hal {
 namespace {
@@ -93,7 +94,7 @@ TEST(GroundTruthFiles, MissingFileIsAnErrorNamingIt) {
 
 TEST(GroundTruthFiles, ReadsTheSharedReferenceTrajectories) {
   const std::string data = test::shared_data_dir();
-  if (data.empty()) GTEST_SKIP() << "../shared/data not found (set MER_SHARED_DIR)";
+  MER_REQUIRE_DATA(!data.empty()) << "../shared/data not found (set MER_SHARED_DIR)";
   const std::string dir = data + "/trajectories";
   const std::pair<const char*, std::size_t> tum[] = {
       {"fr2_desk_groundtruth.txt", 0},      {"fr2_desk_ORB.txt", 2893},

@@ -12,6 +12,7 @@
 #include "platform/alloc_counter.h"
 #include "platform/clock.h"
 #include "replay_fixtures.h"
+#include "support/required_data.h"
 
 namespace mer::hal {
 namespace {
@@ -50,7 +51,7 @@ struct Clip {
 
 TEST(ReplayCamera, ReplaysTheSharedKittiClips) {
   const std::string data = test::shared_data_dir();
-  if (data.empty()) GTEST_SKIP() << "../shared/data not found (set MER_SHARED_DIR)";
+  MER_REQUIRE_DATA(!data.empty()) << "../shared/data not found (set MER_SHARED_DIR)";
   // Note: kitti_clip1/poses.txt holds 51 poses, not 50 as its README says: its last line
   // has no trailing newline (so `wc -l` counts 50), and groundtruth.txt has the same 51st
   // pose (t = 5.0). Dropping an unterminated last line would be a silent wrong answer.
@@ -114,7 +115,7 @@ TEST(ReplayCamera, ReplaysTheSharedKittiClips) {
 // The real clip with its last pose removed: 51 images, 50 poses; frame 50 has none.
 TEST(ReplayCamera, ClipWithFewerPosesThanImages) {
   const std::string data = test::shared_data_dir();
-  if (data.empty()) GTEST_SKIP() << "../shared/data not found (set MER_SHARED_DIR)";
+  MER_REQUIRE_DATA(!data.empty()) << "../shared/data not found (set MER_SHARED_DIR)";
   test::TempDir dir;
   const std::string clip = data + "/kitti_clip1";
   std::filesystem::create_symlink(clip + "/image_0", dir / "image_0");
