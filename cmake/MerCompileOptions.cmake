@@ -11,6 +11,12 @@ endif()
 
 if(MER_SANITIZER STREQUAL "asan")
   set(MER_SAN_FLAGS -fsanitize=address,undefined -fno-sanitize-recover=undefined -fno-omit-frame-pointer)
+  if(CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
+    # The instrumentation defeats GCC's flow analysis: GCC 12 reports a memset bound of
+    # 2^64 - 101 inside std::fill_n of a sized vector (tests/fuzz/make_recording_corpus.cpp),
+    # which the uninstrumented build does not. The sanitizers check those accesses at run time.
+    list(APPEND MER_WARNINGS -Wno-stringop-overflow)
+  endif()
 elseif(MER_SANITIZER STREQUAL "tsan")
   set(MER_SAN_FLAGS -fsanitize=thread -fno-omit-frame-pointer)
 elseif(NOT MER_SANITIZER STREQUAL "")

@@ -17,9 +17,10 @@
 namespace mer::hal {
 namespace {
 
-constexpr std::array<std::string_view, 10> kScenarios{
-    "room_orbit", "room_loop",    "room_kidnap",   "room_fast_rotation", "hall_drive",
-    "hall_turn",  "room_explore", "room_rotation", "corridor",           "room_kidnap_unknown"};
+constexpr std::array<std::string_view, 12> kScenarios{
+    "room_orbit", "room_loop",           "room_kidnap",   "room_fast_rotation",
+    "hall_drive", "hall_turn",           "room_explore",  "room_rotation",
+    "corridor",   "room_kidnap_unknown", "room_repeated", "hall_repeated"};
 constexpr std::size_t kNoiseTableSize = 1 << 16;  // noise values, cycled with a per-frame offset
 constexpr int kShapesPerWall = 160;               // texture primitives per wall
 constexpr double kNsPerS = 1e9;
@@ -77,6 +78,31 @@ constexpr double kCorridorWhite = 200.0;       // corridor: grey level of the pa
 constexpr double kKidnapLookS = 1.5;           // room_kidnap_unknown: looks round this long, s
 constexpr int kMinMipSize = 8;                 // coarsest texture level, texels per side
 constexpr float kMinObliqueCos = 0.25F;        // obliquity taken into a pixel footprint at most 4x
+
+// Look-alike places (repeat_texture, room_repeated, hall_repeated).
+constexpr double kRoomPanelW = 2.0;        // rooms and the corridor: panel width, m
+constexpr double kRoomPanelH = 1.4;        // ... height, m
+constexpr double kRoomPanelZ = 0.7;        // ... height of its lower edge, m
+constexpr double kHallPanelW = 3.0;        // halls: panel width, m
+constexpr double kHallPanelH = 2.4;        // ... height, m
+constexpr double kHallPanelZ = 0.6;        // ... height of its lower edge, m
+constexpr double kPanelFill = 0.9;         // copies sharing a wall fill at most this fraction
+constexpr double kPanelFrameM = 0.05;      // the panel's dark frame, m
+constexpr double kPanelFrameGrey = 30.0;   // ... its grey level
+constexpr double kPanelKeepOut = 3.5;      // boxes keep off the floor this far out of a panel, m
+constexpr double kPanelKeepOutSide = 0.3;  // ... and this far beyond its sides, m
+constexpr std::uint32_t kPanelSalt = 0x2545F491U;  // the panel's crop: its own random stream
+constexpr double kRepeatSettleS = 2.0;             // room_repeated: facing A before the lap, s
+constexpr double kRepeatLapGapS = 1.0;       // room_repeated: the lap ends this before the blackout
+constexpr double kRepeatMinLapS = 3.0;       // room_repeated: shortest lap, s
+constexpr double kRepeatRadius = 0.9;        // room_repeated: lap radius about the room centre, m
+constexpr double kRepeatSway = 0.12;         // room_repeated: sideways sway amplitude, m
+constexpr double kRepeatApproachMps = 0.08;  // room_repeated: stepping towards A, m/s
+constexpr double kRepeatApproachMax = 0.5;   // ... at most this far, m
+constexpr double kRepeatAfterS = 3.0;        // room_repeated: facing A after the blackout, s
+constexpr double kRepeatLeaveS = 8.0;        // room_repeated: the walk to the +y half, s
+constexpr double kHallRepeatGap = 4.0;       // hall_repeated: the path keeps this far from walls, m
+constexpr double kHallRepeatLookRad = 35.0 * std::numbers::pi / 180.0;  // view right of travel
 
 // Smooth 0 -> 1 ramp over x in [0, 1] with zero slope at both ends (peak slope 1.5).
 double smoothstep(double x) {
@@ -300,8 +326,11 @@ Status SyntheticCamera::open(std::size_t pool_size) {
           : scenario_ == "room_rotation"       ? Scenario::kRoomRotation
           : scenario_ == "corridor"            ? Scenario::kCorridor
           : scenario_ == "room_kidnap_unknown" ? Scenario::kKidnapUnknown
+          : scenario_ == "room_repeated"       ? Scenario::kRoomRepeated
+          : scenario_ == "hall_repeated"       ? Scenario::kHallRepeated
                                                : Scenario::kOrbit;
-  const bool hall = kind_ == Scenario::kHallDrive || kind_ == Scenario::kHallTurn;
+  const bool hall = kind_ == Scenario::kHallDrive || kind_ == Scenario::kHallTurn ||
+                    kind_ == Scenario::kHallRepeated;
   const bool corridor = kind_ == Scenario::kCorridor;
   // The scenarios before hall_turn keep their procedural textures and boxes bit for bit.
   const bool reproduction = static_cast<int>(kind_) >= static_cast<int>(Scenario::kHallTurn);
@@ -319,6 +348,7 @@ Status SyntheticCamera::open(std::size_t pool_size) {
   if (kind_ == Scenario::kHallTurn) {
     if (Status s = make_turn_path_checked(); !s.is_ok()) return s;
   }
+  if (Status s = check_repeated_script(); !s.is_ok()) return s;
 
   const int w = opts_.width;
   const int h = opts_.height;
@@ -372,6 +402,14 @@ Status SyntheticCamera::open(std::size_t pool_size) {
         std::max(static_cast<float>(textures_[k].w) / (room_hi_[pa] - room_lo_[pa]),
                  static_cast<float>(textures_[k].h) / (room_hi_[qa] - room_lo_[qa]));
   }
+  // Look-alike places: the panel is cut from the first wall's photo (or its texture).
+  if (photos.empty()) {
+    std::vector<std::uint8_t>& level0 = textures_[0].levels.front();
+    const cv::Mat first(textures_[0].h, textures_[0].w, CV_8UC1, level0.data());
+    make_panels(first);
+  } else {
+    make_panels(photos.front());
+  }
   if (kind_ == Scenario::kHallDrive) {
     place_hall_boxes(rng());
   } else if (!reproduction) {
@@ -380,6 +418,9 @@ Status SyntheticCamera::open(std::size_t pool_size) {
     boxes_.clear();
   } else {
     place_boxes_clear_of_path(rng(), hall);
+  }
+  if (!panels_.empty()) {
+    for (std::size_t b = 1; b < boxes_.size(); b += 2) boxes_[b].texture = kPanelTexture;
   }
   noise_.resize(kNoiseTableSize);
   for (auto& n : noise_) {
@@ -551,6 +592,12 @@ ScenarioSample SyntheticCamera::sample_at(double t_s) const {
       break;
     case Scenario::kKidnapUnknown:
       s = kidnap_unknown_sample(t_s);
+      break;
+    case Scenario::kRoomRepeated:
+      s = repeated_room_sample(t_s);
+      break;
+    case Scenario::kHallRepeated:
+      s.T_w_c = repeated_hall_pose(t_s);
       break;
   }
   return s;
@@ -758,6 +805,139 @@ ScenarioSample SyntheticCamera::kidnap_unknown_sample(double t_s) const {
   return s;
 }
 
+Status SyntheticCamera::check_repeated_script() const {
+  char buf[256];
+  if (kind_ == Scenario::kRoomRepeated &&
+      opts_.kidnap_start_s - kRepeatLapGapS - kRepeatSettleS < kRepeatMinLapS) {
+    std::snprintf(buf, sizeof buf,
+                  "synthetic:room_repeated: camera.synthetic.kidnap_start_s (%.1f s) must be at "
+                  "least %.0f s: the mapping lap ends %.0f s before the blackout",
+                  opts_.kidnap_start_s, kRepeatSettleS + kRepeatMinLapS + kRepeatLapGapS,
+                  kRepeatLapGapS);
+    return invalid_argument(buf);
+  }
+  if (kind_ == Scenario::kHallRepeated && opts_.hall_size_x < opts_.hall_size_y + 2.0) {
+    std::snprintf(buf, sizeof buf,
+                  "synthetic:hall_repeated: the hall must be longer than wide: "
+                  "camera.synthetic.hall_size_x (%.1f m) must be at least hall_size_y (%.1f m) "
+                  "+ 2 m",
+                  opts_.hall_size_x, opts_.hall_size_y);
+    return invalid_argument(buf);
+  }
+  return Status::ok();
+}
+
+ScenarioSample SyntheticCamera::repeated_room_sample(double t_s) const {
+  // Facing A (the -x wall's copy), a lap round a circle about the room centre looking
+  // outwards (A, the -y wall, B on the +x wall, the +y wall, A again), facing A while stepping
+  // towards it (the blackout falls here; the camera moves on), then a walk to the +y half of
+  // the room facing the +y wall. A hand's sway, bob and look-around on top throughout.
+  const double t_lap0 = kRepeatSettleS;
+  const double t_lap1 = opts_.kidnap_start_s - kRepeatLapGapS;
+  const double black_end = opts_.kidnap_start_s + opts_.kidnap_black_s;
+  const double t_leave = black_end + kRepeatAfterS;
+  // The script's (x, y, heading) at t, before the walk to the +y half.
+  auto script = [&](double t) {
+    const double phi = std::numbers::pi + kTwoPi * smoothstep((t - t_lap0) / (t_lap1 - t_lap0));
+    const double step =
+        std::min(kRepeatApproachMps * std::max(0.0, t - t_lap1), kRepeatApproachMax);
+    return std::array<double, 3>{kRepeatRadius * std::cos(phi) - step,
+                                 kRepeatRadius * std::sin(phi), phi};
+  };
+  std::array<double, 3> q = script(std::min(t_s, t_leave));
+  if (t_s > t_leave) {
+    // Turning right by 90 degrees to face the +y wall.
+    const std::array<double, 3> target{0.1 * opts_.room_size_x, 0.25 * opts_.room_size_y,
+                                       q[2] - 0.5 * std::numbers::pi};
+    const double u = smoothstep((t_s - t_leave) / kRepeatLeaveS);
+    for (std::size_t i = 0; i < q.size(); ++i) q[i] += u * (target[i] - q[i]);
+  }
+  const double sway = kRepeatSway * std::sin(kTwoPi * t_s / 4.0);
+  const Eigen::Vector3d eye(q[0] + sway * std::sin(q[2]), q[1] - sway * std::cos(q[2]),
+                            kWalkEyeHeight + 0.02 * std::sin(kTwoPi * 1.8 * t_s));
+  const double yaw =
+      q[2] + 0.06 * std::sin(kTwoPi * t_s / 3.3) + 0.01 * std::sin(kTwoPi * 2.3 * t_s);
+  const double pitch = -0.05 + 0.03 * std::sin(kTwoPi * t_s / 4.1);
+  ScenarioSample s;
+  s.T_w_c = heading_pose(eye, yaw, pitch);
+  s.visible = t_s < opts_.kidnap_start_s || t_s >= black_end;
+  return s;
+}
+
+SE3d SyntheticCamera::repeated_hall_pose(double t_s) const {
+  // Counter-clockwise round a stadium kHallRepeatGap from the walls: starts where the -y
+  // straight begins, heading +x.
+  const double r = 0.5 * opts_.hall_size_y - kHallRepeatGap;
+  const double hx = 0.5 * opts_.hall_size_x - kHallRepeatGap;
+  double heading = 0.0;
+  const Eigen::Vector2d pos =
+      rounded_rect_point(opts_.drive_speed_mps * t_s - (hx - r), hx, r, r, heading);
+  const double bounce = 0.02 * std::sin(kTwoPi * 1.3 * t_s);
+  const double pitch = 0.01 * std::sin(kTwoPi * 0.7 * t_s);
+  return heading_pose(Eigen::Vector3d(pos.x(), pos.y(), kDriveEyeHeight + bounce),
+                      heading - kHallRepeatLookRad, pitch);
+}
+
+void SyntheticCamera::make_panels(const cv::Mat& first) {
+  // One framed panel, cut from `first`, and its copies: in rooms centred on the -x, +x, -y,
+  // +y walls in turn, in halls and the corridor on the two long walls; copies sharing a wall
+  // spread evenly along it. Every copy has the same size and texels.
+  panels_.clear();
+  wall_panels_.fill(0);
+  panel_ = Texture{};
+  const int n = opts_.repeat_texture;
+  if (n <= 0) return;
+  const bool hall = kind_ == Scenario::kHallDrive || kind_ == Scenario::kHallTurn ||
+                    kind_ == Scenario::kHallRepeated;
+  const bool corridor = kind_ == Scenario::kCorridor;
+  std::array<double, 3> ext{};
+  for (std::size_t a = 0; a < 3; ++a) ext[a] = room_hi_[a] - room_lo_[a];
+  std::array<int, 4> order{0, 1, 2, 3};
+  std::size_t num_walls = 4;
+  if (hall || corridor) {
+    order = ext[0] >= ext[1] ? std::array<int, 4>{2, 3, 0, 1} : std::array<int, 4>{0, 1, 2, 3};
+    num_walls = 2;
+  }
+  std::array<int, 4> count{};
+  for (int i = 0; i < n; ++i) ++count[static_cast<std::size_t>(order[i % num_walls])];
+  double width = hall ? kHallPanelW : kRoomPanelW;
+  for (std::size_t k = 0; k < 4; ++k) {
+    if (count[k] > 0) width = std::min(width, kPanelFill * ext[k < 2 ? 1 : 0] / count[k]);
+  }
+  const double z0 = hall ? kHallPanelZ : kRoomPanelZ;
+  const double z1 = std::min(z0 + (hall ? kHallPanelH : kRoomPanelH), ext[2] - 0.1);
+  // The texture, at the walls' density.
+  const double density = corridor ? kCorridorTexelsPerM : opts_.texture_size / ext[2];
+  const int tw = std::max(kMinMipSize, static_cast<int>(std::lround(width * density)));
+  const int th = std::max(kMinMipSize, static_cast<int>(std::lround((z1 - z0) * density)));
+  std::mt19937 rng(static_cast<std::uint32_t>(opts_.seed) ^ kPanelSalt);
+  cv::Mat canvas = photo_crop(first, tw, th, uniform(rng, 0.5, 0.9), rng);
+  const int frame = std::max(1, static_cast<int>(std::lround(kPanelFrameM * density)));
+  canvas.rowRange(0, std::min(frame, th)).setTo(kPanelFrameGrey);
+  canvas.rowRange(std::max(0, th - frame), th).setTo(kPanelFrameGrey);
+  canvas.colRange(0, std::min(frame, tw)).setTo(kPanelFrameGrey);
+  canvas.colRange(std::max(0, tw - frame), tw).setTo(kPanelFrameGrey);
+  cv::flip(canvas, canvas, 0);  // row 0 at the bottom, as on the walls
+  panel_.w = tw;
+  panel_.h = th;
+  panel_.levels =
+      make_mips_rect(std::vector<std::uint8_t>(canvas.datastart, canvas.dataend), tw, th);
+  panel_texels_per_m_ = static_cast<float>(std::max(tw / width, th / (z1 - z0)));
+  for (std::size_t k = 0; k < 4; ++k) {
+    wall_panels_[k] = panels_.size();
+    const std::size_t pa = k < 2 ? 1 : 0;
+    for (int j = 0; j < count[k]; ++j) {
+      const double centre = room_lo_[pa] + ext[pa] * (j + 0.5) / count[k];
+      // Seen from inside, +u runs to the right on the -x and +y walls, to the left on the
+      // others: their copies are mirrored so that every copy reads the same.
+      panels_.push_back(WallPanel{static_cast<int>(k), static_cast<float>(centre - 0.5 * width),
+                                  static_cast<float>(centre + 0.5 * width), static_cast<float>(z0),
+                                  static_cast<float>(z1), k == 1 || k == 2});
+    }
+  }
+  for (std::size_t k = 4; k < wall_panels_.size(); ++k) wall_panels_[k] = panels_.size();
+}
+
 void SyntheticCamera::place_boxes(std::uint32_t seed) {
   // Boxes stand on the floor, inside the room, and clear of every scripted camera path
   // (the orbit circle lies inside the loop ellipse, so clearing the ellipse clears both).
@@ -848,7 +1028,21 @@ void SyntheticCamera::place_boxes_clear_of_path(std::uint32_t seed, bool hall) {
       const double cx = uniform(rng, -hx + 0.5 * bx, hx - 0.5 * bx);
       const double cy = uniform(rng, -hy + 0.5 * by, hy - 0.5 * by);
       bool clear = true;
+      // Not in front of a panel (repeat_texture): the copies are seen unoccluded.
+      for (const WallPanel& pn : panels_) {
+        const auto a = static_cast<std::size_t>(pn.wall / 2);
+        const std::size_t pa = a == 0 ? 1 : 0;
+        const double depth = std::min(kPanelKeepOut, 0.5 * (room_hi_[a] - room_lo_[a]));
+        const double n0 = pn.wall % 2 == 0 ? room_lo_[a] : room_hi_[a] - depth;
+        const std::array<double, 2> c{cx, cy};
+        const std::array<double, 2> half{0.5 * bx, 0.5 * by};
+        const bool along = c[pa] + half[pa] > pn.u0 - kPanelKeepOutSide &&
+                           c[pa] - half[pa] < pn.u1 + kPanelKeepOutSide;
+        const bool out = c[a] + half[a] > n0 && c[a] - half[a] < n0 + depth;
+        if (along && out) clear = false;
+      }
       for (const Eigen::Vector2d& c : path) {
+        if (!clear) break;
         const double gx = std::max(0.0, std::abs(c.x() - cx) - 0.5 * bx);
         const double gy = std::max(0.0, std::abs(c.y() - cy) - 0.5 * by);
         if (gx * gx + gy * gy < clearance * clearance) {
@@ -929,7 +1123,8 @@ void SyntheticCamera::make_photo_textures(const std::vector<cv::Mat>& photos, st
   // their aspect), upright on the vertical walls (texture rows run up). Rooms: one random
   // crop of the wall's aspect; the hall: a grid of crops half the hall's height, like
   // facades and signs.
-  const bool hall = kind_ == Scenario::kHallDrive || kind_ == Scenario::kHallTurn;
+  const bool hall = kind_ == Scenario::kHallDrive || kind_ == Scenario::kHallTurn ||
+                    kind_ == Scenario::kHallRepeated;
   const double density = opts_.texture_size / static_cast<double>(room_hi_[2] - room_lo_[2]);
   for (std::size_t k = 0; k < textures_.size(); ++k) {
     const std::size_t a = k / 2;
@@ -1221,7 +1416,9 @@ void SyntheticCamera::render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* dep
       if (hit_box != nullptr) {
         const int pa = box_axis == 0 ? 1 : 0;
         const int qa = box_axis == 2 ? 1 : 2;
-        const Texture& tex = textures_[static_cast<std::size_t>(hit_box->texture)];
+        const Texture& tex = hit_box->texture == kPanelTexture
+                                 ? panel_
+                                 : textures_[static_cast<std::size_t>(hit_box->texture)];
         const float box_texels_per_m =
             static_cast<float>(std::min(tex.w, tex.h) - 1) / box_texture_metres;
         value = sample(
@@ -1232,15 +1429,37 @@ void SyntheticCamera::render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* dep
         const int pa = axis == 0 ? 1 : 0;
         const int qa = axis == 2 ? 1 : 2;
         const auto wall = static_cast<std::size_t>(axis * 2 + side);
-        const Texture& tex = textures_[wall];
-        const float tmax_u = static_cast<float>(tex.w - 1) - 1e-3F;
-        const float tmax_v = static_cast<float>(tex.h - 1) - 1e-3F;
-        const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax_u;
-        const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax_v;
-        value = sample(
-            tex,
-            level_for(d, t, wall_texels_per_m_[wall], axis, static_cast<int>(tex.levels.size())),
-            fu, fv);
+        const WallPanel* panel = nullptr;
+        for (std::size_t k = wall_panels_[wall]; k < wall_panels_[wall + 1]; ++k) {
+          const WallPanel& pn = panels_[k];
+          if (p[pa] >= pn.u0 && p[pa] < pn.u1 && p[qa] >= pn.v0 && p[qa] < pn.v1) {
+            panel = &pn;
+            break;
+          }
+        }
+        if (panel == nullptr) {
+          const Texture& tex = textures_[wall];
+          const float tmax_u = static_cast<float>(tex.w - 1) - 1e-3F;
+          const float tmax_v = static_cast<float>(tex.h - 1) - 1e-3F;
+          const float fu = std::clamp((p[pa] - lo[pa]) / (hi[pa] - lo[pa]), 0.0F, 1.0F) * tmax_u;
+          const float fv = std::clamp((p[qa] - lo[qa]) / (hi[qa] - lo[qa]), 0.0F, 1.0F) * tmax_v;
+          value = sample(
+              tex,
+              level_for(d, t, wall_texels_per_m_[wall], axis, static_cast<int>(tex.levels.size())),
+              fu, fv);
+        } else {
+          const float tmax_u = static_cast<float>(panel_.w - 1) - 1e-3F;
+          const float tmax_v = static_cast<float>(panel_.h - 1) - 1e-3F;
+          float across = (p[pa] - panel->u0) / (panel->u1 - panel->u0);
+          if (panel->mirror) across = 1.0F - across;
+          const float fu = std::clamp(across, 0.0F, 1.0F) * tmax_u;
+          const float fv =
+              std::clamp((p[qa] - panel->v0) / (panel->v1 - panel->v0), 0.0F, 1.0F) * tmax_v;
+          value = sample(
+              panel_,
+              level_for(d, t, panel_texels_per_m_, axis, static_cast<int>(panel_.levels.size())),
+              fu, fv);
+        }
       }
       value *= gain;
       if (noisy) {

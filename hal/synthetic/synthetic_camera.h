@@ -7,7 +7,8 @@
 /// each wall carrying a texture made at open() from the seed: procedural (random rectangles
 /// and discs over a gradient: plenty of corners for feature detectors) or photographs from a
 /// folder (`texture: photo`, default the Debian package mate-backgrounds), grey, cropped and
-/// resized, one photo per wall picked by the seed. Camera effects: additive noise, a
+/// resized, one photo per wall picked by the seed. Look-alike places (`repeat_texture`): one
+/// framed photo panel repeated on several walls (and boxes). Camera effects: additive noise, a
 /// sinusoidal and a stepped exposure gain, and motion blur (the mean of several renders
 /// spread over the exposure time along the trajectory). Per-pixel ray directions, textures
 /// and the blur accumulator are made at open(), so acquire() does no allocation.
@@ -25,8 +26,8 @@
 namespace mer::hal {
 
 /// Values of `camera.synthetic.texture`: auto is photo for the reproduction scenarios
-/// (hall_turn, room_explore, room_rotation, corridor, room_kidnap_unknown) and procedural for
-/// the others.
+/// (hall_turn, room_explore, room_rotation, corridor, room_kidnap_unknown, room_repeated,
+/// hall_repeated) and procedural for the others.
 inline constexpr std::array<std::string_view, 3> kSyntheticTextures{"auto", "procedural", "photo"};
 /// Values of `camera.synthetic.photo_set`: every photo, or one of two disjoint halves of the
 /// name-sorted list (dev: even positions, heldout: odd ones).
@@ -52,14 +53,14 @@ struct SyntheticOptions {
   double room_height = 2.6;         ///< room height, m
   int num_boxes = 6;                ///< textured boxes standing in the room (0..16)
   int texture_size = 512;           ///< texels per wall side
-  double kidnap_start_s = 8.0;      ///< room_kidnap: when the image goes black, s
-  double kidnap_black_s = 1.0;      ///< room_kidnap: how long it stays black, s
+  double kidnap_start_s = 8.0;      ///< room_kidnap, room_repeated: when the image goes black, s
+  double kidnap_black_s = 1.0;      ///< room_kidnap, room_repeated: how long it stays black, s
   double kidnap_back_s = 6.0;       ///< room_kidnap: how far back in time the camera reappears, s
   double rotation_burst_s = 2.0;    ///< room_fast_rotation: duration of each 360 deg turn, s
   double hall_size_x = 80.0;        ///< hall_drive: hall extent along world x, m
   double hall_size_y = 50.0;        ///< hall_drive: hall extent along world y, m
   double hall_height = 10.0;        ///< hall_drive: hall height, m
-  double drive_speed_mps = 5.6;     ///< hall_drive: driving speed, m/s
+  double drive_speed_mps = 5.6;     ///< hall_drive, hall_repeated: driving speed, m/s
   std::string texture = "auto";     ///< auto | procedural | photo (kSyntheticTextures)
   std::string photo_dir{kDefaultPhotoDir};  ///< photo textures: folder searched for *.jpg
   std::string photo_set = "all";            ///< photo textures: all | dev | heldout
@@ -81,6 +82,7 @@ struct SyntheticOptions {
   double corridor_speed_mps = 1.0;     ///< corridor: walking speed, m/s
   double corridor_contrast = 0.12;     ///< corridor: photo contrast kept on the white walls (0..1)
   double kidnap_return_s = 6.0;        ///< room_kidnap_unknown: walk back to the mapped part, s
+  int repeat_texture = 0;  ///< look-alike places: copies of one photo panel on the walls (0: off)
 
   template <class V>
   void visit(V& v) {
@@ -108,9 +110,11 @@ struct SyntheticOptions {
     v.field("num_boxes", num_boxes, "textured boxes standing in the room",
             options::Range<int>{0, 16});
     v.field("texture_size", texture_size, "texels per wall side", options::Range<int>{16, 4096});
-    v.field("kidnap_start_s", kidnap_start_s, "room_kidnap: time the image goes black, s",
+    v.field("kidnap_start_s", kidnap_start_s,
+            "room_kidnap, room_repeated: time the image goes black, s (room_repeated: its "
+            "mapping lap ends 1 s before; at least 6 s)",
             options::Range<double>{0.0, 1e6});
-    v.field("kidnap_black_s", kidnap_black_s, "room_kidnap: blackout duration, s",
+    v.field("kidnap_black_s", kidnap_black_s, "room_kidnap, room_repeated: blackout duration, s",
             options::Range<double>{0.0, 1e6});
     v.field("kidnap_back_s", kidnap_back_s,
             "room_kidnap: the camera reappears where it was this long before, s",
@@ -125,11 +129,12 @@ struct SyntheticOptions {
     v.field("hall_height", hall_height, "hall_drive: hall height, m",
             options::Range<double>{3.0, 100.0});
     v.field("drive_speed_mps", drive_speed_mps,
-            "hall_drive: driving speed, m/s (hall_turn: speed on its straights)",
+            "hall_drive, hall_repeated: driving speed, m/s (hall_turn: speed on its straights)",
             options::Range<double>{0.1, 50.0});
     v.field("texture", texture,
             "wall textures: procedural, photo (from photo_dir), or auto (photo for hall_turn, "
-            "room_explore, room_rotation, corridor, room_kidnap_unknown; procedural otherwise)",
+            "room_explore, room_rotation, corridor, room_kidnap_unknown, room_repeated, "
+            "hall_repeated; procedural otherwise)",
             options::OneOf{kSyntheticTextures});
     v.field("photo_dir", photo_dir,
             "photo textures: folder searched (recursively) for *.jpg; default from the Debian "
@@ -183,6 +188,13 @@ struct SyntheticOptions {
             "room_kidnap_unknown: after reappearing, time to walk and turn back to the mapped "
             "part, s",
             options::Range<double>{1.0, 1e6});
+    v.field("repeat_texture", repeat_texture,
+            "look-alike places: this many copies of one framed panel (a crop of the first "
+            "wall's photo or texture, the same texels in each copy) hang on the walls: in rooms "
+            "centred on the -x, +x, -y, +y walls in turn (more copies share a wall evenly), in "
+            "halls and the corridor evenly along the two long walls; every other box wears the "
+            "same photo (0: off, every scene as without it)",
+            options::Range<int>{0, 64});
   }
 };
 
@@ -190,7 +202,20 @@ struct SyntheticOptions {
 struct SceneBox {
   Eigen::Vector3f lo;  ///< minimum corner, world, m
   Eigen::Vector3f hi;  ///< maximum corner, world, m
-  int texture = 0;     ///< texture index
+  int texture = 0;     ///< texture index (0-5: a wall's; kPanelTexture: the repeated panel)
+};
+
+/// SceneBox::texture of a box wearing the repeated panel's photo (`repeat_texture`).
+inline constexpr int kPanelTexture = 6;
+
+/// One copy of the repeated panel (`repeat_texture`), on a vertical wall.
+struct WallPanel {
+  int wall = 0;     ///< wall index: axis * 2 + side (0: -x, 1: +x, 2: -y, 3: +y)
+  float u0 = 0.0F;  ///< extent along the wall's horizontal axis (y for x walls, else x), m
+  float u1 = 0.0F;
+  float v0 = 0.0F;  ///< extent in height (world z), m
+  float v1 = 0.0F;
+  bool mirror = false;  ///< texture columns run towards -u (so copies read the same from inside)
 };
 
 /// Where the scripted camera is at one instant.
@@ -236,6 +261,19 @@ struct ScenarioSample {
 ///   `kidnap_start_s`, black for `kidnap_black_s`, then reappears in the +x half looking at
 ///   the +x wall (never seen before), and walks and turns back over `kidnap_return_s` until
 ///   it sees the mapped -x half again.
+/// - `room_repeated`: look-alike places for relocalization (use `repeat_texture` >= 2: the
+///   same panel on the -x wall, A, and the +x wall, B, 6-8 m apart). Hand-held, facing A for
+///   2 s with a sideways sway, then a walk round a 0.9 m circle about the room centre looking
+///   outwards (A, -y wall, B, +y wall, A) that ends 1 s before `kidnap_start_s`; then facing A,
+///   stepping slowly towards it with the sway, black from `kidnap_start_s` for
+///   `kidnap_black_s` while the camera moves on (no jump; no ground truth while black),
+///   facing A for 3 s more, then walks over 8 s to the +y half of the room facing the +y wall.
+/// - `hall_repeated`: look-alike places for loop closure (use `repeat_texture`: copies every
+///   few metres along both long walls). A car-like drive (1.65 m up) at `drive_speed_mps`
+///   round a stadium in a hall of `hall_size_x` x `hall_size_y` x `hall_height`: along the -y
+///   side heading +x, a 180 degree left turn at the far end, back along the +y side, a turn at
+///   the near end and on through its start (a true loop); straights 4 m from the long walls,
+///   looking 35 degrees to the right (sideways-forward, at the near wall's panels).
 std::span<const std::string_view> synthetic_scenarios();
 
 /// The synthetic camera. `paced` = true makes acquire() wait for each frame's due time
@@ -259,6 +297,9 @@ class SyntheticCamera final : public CameraSource {
 
   /// The boxes standing in the room (valid after open()).
   const std::vector<SceneBox>& boxes() const { return boxes_; }
+
+  /// The copies of the repeated panel (`repeat_texture`), sorted by wall (valid after open()).
+  const std::vector<WallPanel>& panels() const { return panels_; }
 
   /// The photos used as textures, one per wall (empty with procedural textures; valid after
   /// open()).
@@ -292,7 +333,9 @@ class SyntheticCamera final : public CameraSource {
     kRoomExplore,
     kRoomRotation,
     kCorridor,
-    kKidnapUnknown
+    kKidnapUnknown,
+    kRoomRepeated,
+    kHallRepeated
   };
   /// A wall texture as a mip pyramid: level l is (w >> l) x (h >> l), row-major.
   struct Texture {
@@ -313,6 +356,13 @@ class SyntheticCamera final : public CameraSource {
   SE3d rotation_pose(double t_s) const;
   SE3d corridor_pose(double t_s) const;
   ScenarioSample kidnap_unknown_sample(double t_s) const;
+  ScenarioSample repeated_room_sample(double t_s) const;
+  SE3d repeated_hall_pose(double t_s) const;
+  // room_repeated, hall_repeated: checks that the scene fits the script.
+  Status check_repeated_script() const;
+  // repeat_texture: the panel's texture, cut from the first wall's photo or texture `first`,
+  // and its copies on the walls (after the wall textures, before the boxes).
+  void make_panels(const cv::Mat& first);
   void place_boxes(std::uint32_t seed);
   void place_hall_boxes(std::uint32_t seed);
   // Boxes clear of the camera positions sampled over the whole sequence (new scenarios).
@@ -345,8 +395,12 @@ class SyntheticCamera final : public CameraSource {
   bool use_mips_ = false;                     // pick a texture level per pixel (hall_drive only)
   std::array<float, 6> wall_texels_per_m_{};  // per wall: level-0 texels per metre (max of axes)
   std::vector<SceneBox> boxes_;
-  std::array<float, 3> room_lo_{};        // scene box minimum corner, world, m
-  std::array<float, 3> room_hi_{};        // scene box maximum corner, world, m
+  Texture panel_;                             // repeat_texture: the repeated panel
+  float panel_texels_per_m_ = 1.0F;           // its level-0 texels per metre
+  std::vector<WallPanel> panels_;             // its copies, sorted by wall
+  std::array<std::size_t, 7> wall_panels_{};  // copies on wall k: [wall_panels_[k], [k + 1])
+  std::array<float, 3> room_lo_{};            // scene box minimum corner, world, m
+  std::array<float, 3> room_hi_{};            // scene box maximum corner, world, m
   float box_texture_metres_ = 1.0F;       // one texture tile spans this many metres on a box face
   std::vector<std::int8_t> noise_;        // precomputed noise table
   std::vector<std::string> photo_files_;  // photo per wall (photo textures)

@@ -10,10 +10,10 @@
 #include <string>
 
 #include "app/summary.h"
+#include "eval/trajectory_eval.h"
 #include "hal/ground_truth.h"
 #include "hal/replay/dataset_parsers.h"
 #include "pipeline/output_stage.h"
-#include "tools/eval/trajectory_eval.h"
 
 namespace mer::app {
 namespace {
@@ -170,8 +170,8 @@ Status write_final_trajectory(const std::string& dir,
   return write_file_atomic((d / "trajectory_final.txt").string(), text);
 }
 
-Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
-                    pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
+Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int max_iterations,
+                    pipeline::Pipeline& pipe, eval::GroundTruthCheckReport& report,
                     AccuracyReport& converged, AccuracyReport& shuffled,
                     AccuracyReport& shuffled_detected) {
   const std::filesystem::path d(dir);
@@ -190,7 +190,13 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
     report.note = gt.status().message();
     return Status::ok();
   }
-  report = pipe.check_against_groundtruth(gt.value().poses);
+  constexpr std::int64_t kMaxDtNs = 1'000'000;  // estimate and truth share frame timestamps
+  constexpr std::uint64_t kShuffleSeed = 1;
+  // A metric map (RGB-D) is aligned without scale, as its ATE is.
+  const bool with_scale = sensor_mode != "rgbd";
+  const pipeline::Pipeline::FinishedMap m = pipe.finished_map();
+  report = eval::check_against_groundtruth(m.map, m.ba, m.K, gt.value().poses, kMaxDtNs, with_scale,
+                                           max_iterations, kShuffleSeed);
   if (!report.ran) return Status::ok();
   const std::array<const std::vector<StampedPose>*, 3> poses{&report.converged, &report.shuffled,
                                                              &report.shuffled_detected};

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "eval/groundtruth_check.h"
 #include "pipeline/pipeline.h"
 
 namespace mer::app {
@@ -49,13 +50,14 @@ Status write_final_trajectory(const std::string& dir,
                               pipeline::FinalTrajectoryStats& stats);
 
 /// --gt-check, after every output is written: loads `dir`/groundtruth.txt, runs the
-/// pipeline's ground-truth check (backend/groundtruth_check.h; it changes the map), writes
+/// ground-truth check (eval/groundtruth_check.h; it changes the map) on the pipeline's
+/// finished map with at most `max_iterations` per full BA, writes
 /// the keyframe poses it converged to (keyframes_gt_converged.txt) and those with shuffled
 /// keypoint errors (keyframes_gt_shuffled.txt) and scores both as keyframes_final.txt is.
 /// A source without ground truth, or a check that cannot run, leaves its reason in
 /// `report.note` and is not an error; a file that cannot be written is.
-Status run_gt_check(const std::string& dir, const std::string& sensor_mode,
-                    pipeline::Pipeline& pipe, backend::GroundTruthCheckReport& report,
+Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int max_iterations,
+                    pipeline::Pipeline& pipe, eval::GroundTruthCheckReport& report,
                     AccuracyReport& converged, AccuracyReport& shuffled,
                     AccuracyReport& shuffled_detected);
 

@@ -149,7 +149,8 @@ int main(int argc, char** argv) {
       } else if (info.stopped_by_signal) {
         info.gt_check.note = "stopped by a signal";  // the summary is due now
       } else {
-        g = app::run_gt_check(args.output_dir, config.pipeline.mode, pipe, info.gt_check,
+        g = app::run_gt_check(args.output_dir, config.pipeline.mode,
+                              config.backend.full_max_iterations, pipe, info.gt_check,
                               info.accuracy_gt_converged, info.accuracy_gt_shuffled,
                               info.accuracy_gt_shuffled_detected);
       }

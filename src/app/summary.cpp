@@ -141,7 +141,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     if (st.final_ba.ran) accuracy_json("accuracy_final_ba", info.accuracy_final);
   }
   if (info.gt_check_requested) {
-    const backend::GroundTruthCheckReport& g = info.gt_check;
+    const eval::GroundTruthCheckReport& g = info.gt_check;
     if (g.ran) {
       j << "  \"gt_check\": {\"keyframes\": " << g.keyframes << ", \"points\": " << g.points
         << ", \"refit_rejected\": " << g.refit_rejected << ", \"observations\": " << g.observations
@@ -271,7 +271,11 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"candidates\": " << rl.candidates << ", \"mean_ms\": "
     << num(rl.attempts > 0 ? rl.sum_ms / static_cast<double>(rl.attempts) : 0.0)
     << ", \"max_ms\": " << num(rl.max_ms) << ", \"last_success_seq\": " << rl.last_success_seq
-    << "},\n";
+    << ", \"trusted_at_once\": " << tc.relocalization_trusted
+    << ", \"to_confirm\": " << tc.relocalization_candidates
+    << ", \"confirmed\": " << tc.relocalization_confirmed
+    << ", \"rejected\": {\"lost_while_confirming\": " << tc.relocalization_rejected_lost
+    << ", \"few_found_in_view\": " << tc.relocalization_rejected_found << "}},\n";
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -357,7 +361,7 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
        << a.ate_pct_of_path << " % of path\n";
   }
   if (info.gt_check_requested) {
-    const backend::GroundTruthCheckReport& g = info.gt_check;
+    const eval::GroundTruthCheckReport& g = info.gt_check;
     if (!g.ran) {
       os << "  ground-truth check: " << g.note << "\n";
     } else {

@@ -36,11 +36,11 @@ struct RunInfo {
   std::vector<AccuracyReport> accuracy_segments;
   bool final_trajectory_written = false;            ///< trajectory_final.txt was written
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
-  AccuracyReport accuracy_final;    ///< ATE of trajectory_final.txt (frames on the final map)
-  bool gt_check_requested = false;  ///< --gt-check
-  backend::GroundTruthCheckReport gt_check;      ///< its result
-  AccuracyReport accuracy_gt_converged;          ///< ATE of keyframes_gt_converged.txt
-  AccuracyReport accuracy_gt_shuffled;           ///< ATE of keyframes_gt_shuffled.txt
+  AccuracyReport accuracy_final;          ///< ATE of trajectory_final.txt (frames on the final map)
+  bool gt_check_requested = false;        ///< --gt-check
+  eval::GroundTruthCheckReport gt_check;  ///< its result
+  AccuracyReport accuracy_gt_converged;   ///< ATE of keyframes_gt_converged.txt
+  AccuracyReport accuracy_gt_shuffled;    ///< ATE of keyframes_gt_shuffled.txt
   AccuracyReport accuracy_gt_shuffled_detected;  ///< of keyframes_gt_shuffled_detected.txt
 };
 

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 #include <mutex>
+#include <numbers>
 
 #include "geometry/depth_sampling.h"
 #include "geometry/self_calibration.h"
@@ -24,6 +25,7 @@ constexpr int kMaxRecentKeyframes = 64;    // distinct keyframes Q_T may draw fr
 constexpr double kReferenceWidth = 640.0;  // extractor.num_features is meant for this size
 constexpr double kReferenceHeight = 480.0;
 constexpr double kQueryNearFraction = 0.05;  // Q_S near plane, fraction of the median depth
+constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
 // Re-projects the rotation onto SO(3): products of poses must not accumulate scale/shear.
 SE3d orthonormalized(const SE3d& T) {
@@ -432,9 +434,11 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
 
   // Culling statistics: every candidate the last search projected into the image was
   // visible; the inliers below were found.
+  last_in_view_ = 0;
   for (int c = 0; c < num_cand_; ++c) {
     if (cand_in_view_[static_cast<std::size_t>(c)] != 0) {
       map_.note_visible(cand_id_[static_cast<std::size_t>(c)]);
+      ++last_in_view_;
     }
   }
   // Tracked points: per-keypoint association, inlier positions, histogram, median depth.
@@ -456,6 +460,8 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
     depth_scratch_.push_back((T2 * corr_X_[i]).z());
   }
   median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  MER_LOG_DEBUG("frame %llu: %d inliers of %d map-points in view",
+                static_cast<unsigned long long>(r.seq), inliers, last_in_view_);
   return true;
 }
 
@@ -493,6 +499,9 @@ void Tracker::advance_state(TrackingResult& r) {
     state_ = TrackerState::kTracking;
     lost_frames_ = 0;
     last_tracked_t_ns_ = r.t_ns;
+    last_tracked_T_c_w_ = T_c_w_;
+    last_tracked_segment_ = segment_;
+    last_tracked_median_depth_ = median_depth_;
   } else if (!initialized_ && segments_started_ == 1) {
     state_ = TrackerState::kInitializing;  // the first map: nothing to relocalize against
   } else {
@@ -505,7 +514,8 @@ void Tracker::advance_state(TrackingResult& r) {
                    ? TrackerState::kRelocalizing
                    : TrackerState::kLost;
       const double lost_s = static_cast<double>(r.t_ns - last_tracked_t_ns_) * 1e-9;
-      if (opts_.new_segments && lost_s >= opts_.new_segment_after_s &&
+      // (Not while a relocalization is being confirmed: it may yet bring the map back.)
+      if (opts_.new_segments && !candidate_ && lost_s >= opts_.new_segment_after_s &&
           segments_started_ < opts_.max_segments) {
         start_new_segment(r.seq);
       }
@@ -514,8 +524,9 @@ void Tracker::advance_state(TrackingResult& r) {
   }
   r.tracker_state = state_;
   r.segment = segment_;
-  r.relocalization_request = state_ == TrackerState::kRelocalizing ||
-                             (state_ == TrackerState::kNewSegment && relocalization_available_);
+  r.relocalization_request =
+      !candidate_ && (state_ == TrackerState::kRelocalizing ||
+                      (state_ == TrackerState::kNewSegment && relocalization_available_));
   if (r.relocalization_request) ++counters_.relocalization_requests;
 }
 
@@ -536,6 +547,50 @@ void Tracker::start_new_segment(std::uint64_t seq) {
   recent_valid_ = 0;  // the dense backends' recent frames are in the old world frame
   reloc_keyframe_ = map::kNoId;
   force_keyframe_ = false;
+}
+
+bool Tracker::within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
+                                  std::uint16_t segment) const {
+  const RelocalizationCheckOptions& o = opts_.relocalization_check;
+  const double lost_s = static_cast<double>(t_ns - last_tracked_t_ns_) * 1e-9;
+  if (segment != last_tracked_segment_ || lost_s > o.short_loss_s) return false;
+  const double moved =
+      (T_c_w.inverse().translation() - last_tracked_T_c_w_.inverse().translation()).norm();
+  const double turned_deg =
+      Eigen::AngleAxisd(T_c_w.linear() * last_tracked_T_c_w_.linear().transpose()).angle() *
+      kRadToDeg;
+  const double max_moved =
+      (o.max_speed_depths_per_s * lost_s + o.margin_depths) * last_tracked_median_depth_;
+  const double max_turned_deg = o.max_turn_deg_per_s * lost_s + o.margin_deg;
+  MER_LOG_DEBUG(
+      "relocalization after %.2f s: moved %.3f (bound %.3f), turned %.1f deg (bound %.1f)", lost_s,
+      moved, max_moved, turned_deg, max_turned_deg);
+  return moved <= max_moved && turned_deg <= max_turned_deg;
+}
+
+double Tracker::recent_found_share() const {
+  if (found_valid_ == 0) return 0.0;
+  std::array<float, kFoundHistory> v = found_share_;
+  const auto end = v.begin() + static_cast<std::ptrdiff_t>(found_valid_);
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(found_valid_ / 2);
+  std::nth_element(v.begin(), mid, end);
+  return *mid;
+}
+
+void Tracker::reject_candidate() {
+  candidate_ = false;
+  candidate_frames_ = 0;
+  reloc_keyframe_ = map::kNoId;
+  T_c_w_ = last_tracked_T_c_w_;
+  median_depth_ = last_tracked_median_depth_;
+  have_pose_ = false;
+  poor_prediction_ = true;
+  velocity_ = SE3d::Identity();
+  if (candidate_returning_) {  // back to initializing the new segment it returned from
+    segment_ = candidate_segment_before_;
+    initialized_ = false;
+    candidate_returning_ = false;
+  }
 }
 
 bool Tracker::return_to_segment_of_hint() {
@@ -588,16 +643,27 @@ void Tracker::set_relocalization_hint(const RelocalizationHint& hint) {
 
 bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   ++frames_since_init_;
-  // A relocalizer's pose (a frame of this lost spell) replaces the last tracked pose.
+  // A relocalizer's pose (a frame of this lost spell) replaces the last tracked pose. Within
+  // the motion bound it is trusted at once; otherwise it is a candidate that the following
+  // frames must confirm (tracking.relocalization_check).
+  const RelocalizationCheckOptions& check = opts_.relocalization_check;
   const bool from_hint =
-      hint_.valid && (state_ == TrackerState::kRelocalizing || state_ == TrackerState::kNewSegment);
-  reloc_keyframe_ = map::kNoId;
+      !candidate_ && hint_.valid &&
+      (state_ == TrackerState::kRelocalizing || state_ == TrackerState::kNewSegment);
+  if (!candidate_) reloc_keyframe_ = map::kNoId;
   if (from_hint) {
     T_c_w_ = hint_.T_c_w;
     have_pose_ = false;
     poor_prediction_ = true;
     reloc_keyframe_ = hint_.keyframe;
     reloc_generation_ = hint_.generation;
+    if (!check.enabled || within_motion_bound(hint_.T_c_w, frame.t_ns, segment_)) {
+      ++counters_.relocalization_trusted;
+    } else {
+      candidate_ = true;
+      candidate_frames_ = 0;
+      ++counters_.relocalization_candidates;
+    }
   }
   hint_.valid = false;
   const SE3d T_c_w_pred = have_pose_ ? SE3d(velocity_ * T_c_w_) : T_c_w_;
@@ -617,13 +683,51 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     poor_prediction_ = true;
     velocity_ = SE3d::Identity();
     T_c_w_ = T_c_w_prev;
+    if (candidate_) {
+      ++counters_.relocalization_rejected_lost;
+      MER_LOG_INFO("frame %llu: relocalization refused (lost while confirming it)",
+                   static_cast<unsigned long long>(frame.seq));
+      reject_candidate();
+    }
     return false;
   }
   velocity_ = orthonormalized(T_c_w_ * T_c_w_prev.inverse());
   have_pose_ = true;
   poor_prediction_ = false;
+  bool confirmed = false;
+  const double found = last_in_view_ > 0 ? static_cast<double>(r.num_inliers) / last_in_view_ : 0.0;
+  if (candidate_) {
+    // A confirming frame must see the place, not only a pattern it shares with another one.
+    const double usual = recent_found_share();
+    if (found < check.min_found_fraction * usual) {
+      ++counters_.relocalization_rejected_found;
+      MER_LOG_INFO(
+          "frame %llu: relocalization refused (found %d of %d map-points in view, a share of "
+          "%.2f against %.2f usually)",
+          static_cast<unsigned long long>(frame.seq), r.num_inliers, last_in_view_, found, usual);
+      r.state = TrackState::kLost;
+      ++counters_.lost;
+      reject_candidate();
+      return false;
+    }
+    if (++candidate_frames_ < check.confirm_frames) {
+      // Tracked from the candidate: the next frame is predicted from here; nothing is
+      // reported or written until it is confirmed.
+      r.state = TrackState::kLost;
+      ++counters_.lost;
+      return false;
+    }
+    candidate_ = false;
+    confirmed = true;
+    ++counters_.relocalization_confirmed;
+    if (candidate_returning_) ++counters_.segment_returns;
+    candidate_returning_ = false;
+  }
   r.state = TrackState::kTracked;
   r.steady = true;
+  found_share_[found_next_] = static_cast<float>(found);
+  found_next_ = (found_next_ + 1) % kFoundHistory;
+  found_valid_ = std::min(found_valid_ + 1, kFoundHistory);
   r.T_w_c = T_c_w_.inverse();
   last_T_w_c_ = r.T_w_c;
   ++counters_.tracked;
@@ -644,7 +748,7 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   KeyframeReason reason = policy_.decide(e);
   if (force_keyframe_ && reason == KeyframeReason::kNone)
     reason = static_cast<KeyframeReason>(last_reason_);
-  if (from_hint) {
+  if ((from_hint && !candidate_) || confirmed) {
     // Back in the map at a place it knew: a keyframe ties the frames that follow to it.
     reason = KeyframeReason::kRelocalization;
     r.relocalized = true;
@@ -1124,7 +1228,10 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     return r;
   }
   const bool tracked = track(frame, r);
-  if (returning && !tracked) {
+  if (returning && candidate_) {
+    candidate_returning_ = true;  // decided when the candidate is confirmed or refused
+    candidate_segment_before_ = segment_before;
+  } else if (returning && !tracked) {
     segment_ = segment_before;  // not found after all: go on initializing the new segment
     initialized_ = false;
   } else if (returning && segment_ != segment_before) {

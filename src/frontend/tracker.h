@@ -13,7 +13,9 @@
 /// Before a map exists it initializes: two-view reconstruction (monocular) or one frame
 /// with depth (RGB-D). Lost frames are reported and, after
 /// `relocalize_after_lost_frames`, offered to the relocalizer (which runs outside tracking);
-/// a pose it finds is the prediction of the next frame (TrackerState: the state machine).
+/// a pose it finds is the prediction of the next frame (TrackerState: the state machine),
+/// trusted at once within the motion bound of a short loss and otherwise only once the
+/// following frames confirm it (tracking.relocalization_check; frames reported lost meanwhile).
 /// Lost for `new_segment_after_s`, it initializes a new map segment (as at the start) and
 /// queries only that segment's points; a relocalization returns to the segment it found.
 ///
@@ -27,6 +29,7 @@
 /// next frame.
 /// After init, spin_once() does not allocate.
 
+#include <array>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -97,6 +100,12 @@ struct TrackerCounters {
   std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
   std::uint64_t new_segments = 0;             ///< map segments started after a lost spell
   std::uint64_t segment_returns = 0;  ///< from new_segment, relocalized into an earlier segment
+  std::uint64_t relocalization_trusted = 0;     ///< poses within the motion bound, trusted at once
+  std::uint64_t relocalization_candidates = 0;  ///< poses that needed confirmation
+  std::uint64_t relocalization_confirmed = 0;   ///< of those, confirmed
+  std::uint64_t relocalization_rejected_lost = 0;   ///< refused: a confirming frame was lost
+  std::uint64_t relocalization_rejected_found = 0;  ///< refused: a confirming frame found too
+                                                    ///< few of the map-points in its view
   std::uint64_t sum_query_temporal = 0;
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
@@ -184,6 +193,12 @@ class Tracker {
   /// Forgets the current segment's tracking state and initializes the next segment from the
   /// next frames (tracking.new_segments).
   void start_new_segment(std::uint64_t seq);
+  /// Whether a relocalizer's pose `T_c_w` at `t_ns` is within the motion bound of the last
+  /// tracked pose (tracking.relocalization_check).
+  bool within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns, std::uint16_t segment) const;
+  /// Drops the pending relocalization candidate (it failed to confirm): back to the last
+  /// tracked pose (and to the new segment it was returning from).
+  void reject_candidate();
   /// In state new_segment with a relocalizer's pose: back to that keyframe's segment (its
   /// median keyframe depth as the query range). False when the keyframe is gone.
   bool return_to_segment_of_hint();
@@ -300,6 +315,22 @@ class Tracker {
   std::uint16_t segment_ = 0;           // segment of the map tracked in (or being initialized)
   std::uint16_t segments_started_ = 1;  // segments this run has started
   std::int64_t last_tracked_t_ns_ = 0;  // capture time of the last tracked frame
+  SE3d last_tracked_T_c_w_ = SE3d::Identity();  // and its pose, segment and median depth
+  std::uint16_t last_tracked_segment_ = 0;
+  double last_tracked_median_depth_ = 1.0;
+  // A relocalization being confirmed (tracking.relocalization_check).
+  bool candidate_ = false;                      // a candidate pose is being confirmed
+  int candidate_frames_ = 0;                    // frames it has been confirmed in so far
+  bool candidate_returning_ = false;            // it returns from a new segment to an earlier one
+  std::uint16_t candidate_segment_before_ = 0;  // the new segment it returns from
+  int last_in_view_ = 0;  // map-points the last estimate_pose projected into view
+  // Found share (inliers / map-points in view) of the last tracked frames: a ring.
+  static constexpr std::size_t kFoundHistory = 16;
+  std::array<float, kFoundHistory> found_share_{};
+  std::size_t found_next_ = 0;
+  std::size_t found_valid_ = 0;
+  /// The median found share of the last tracked frames (0: none yet).
+  double recent_found_share() const;
 };
 
 }  // namespace mer::frontend

@@ -248,16 +248,8 @@ Status Pipeline::run() {
   return c.is_ok() ? k : c;
 }
 
-backend::GroundTruthCheckReport Pipeline::check_against_groundtruth(
-    std::span<const StampedPose> groundtruth) {
-  // Every stage has stopped: this thread is the map's only user now.
-  constexpr std::int64_t kMaxDtNs = 1'000'000;  // estimate and truth share frame timestamps
-  constexpr std::uint64_t kShuffleSeed = 1;
-  // A metric map (RGB-D) is aligned without scale, as its ATE is.
-  const bool with_scale = config_.pipeline.mode != "rgbd";
-  return backend::check_against_groundtruth(*map_, *ba_, tracker_->intrinsics(), groundtruth,
-                                            kMaxDtNs, with_scale,
-                                            config_.backend.full_max_iterations, kShuffleSeed);
+Pipeline::FinishedMap Pipeline::finished_map() {
+  return FinishedMap{*map_, *ba_, tracker_->intrinsics()};
 }
 
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {

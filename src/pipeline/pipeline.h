@@ -35,7 +35,6 @@
 #include <string>
 #include <vector>
 
-#include "backend/groundtruth_check.h"
 #include "backend/local_ba.h"
 #include "backend/map_culling.h"
 #include "core/status.h"
@@ -209,10 +208,15 @@ class Pipeline {
   /// After run(): every keyframe's pose in the final map, the removed ones through their
   /// lineage (final_trajectory.h), sorted by time.
   std::vector<FinalKeyframePose> final_keyframe_poses() const;
-  /// After run(), once every output is written: checks the final map's observations against
-  /// `groundtruth` (backend/groundtruth_check.h). Changes the map for good.
-  backend::GroundTruthCheckReport check_against_groundtruth(
-      std::span<const StampedPose> groundtruth);
+  /// The finished map, for evaluation after run() (eval/groundtruth_check.h): every stage
+  /// has stopped, so the caller is the map's only user.
+  struct FinishedMap {
+    map::Map& map;                     ///< the map as the run left it
+    backend::LocalBundleAdjuster& ba;  ///< the bundle adjuster configured for it
+    geometry::Pinhole K;               ///< the intrinsics tracking ended with
+  };
+  /// After run() (see FinishedMap).
+  FinishedMap finished_map();
 
  private:
   Status run_lockstep();

@@ -7,8 +7,8 @@
 #include <string>
 #include <string_view>
 
+#include "eval/trajectory_eval.h"
 #include "hal/ground_truth.h"
-#include "trajectory_eval.h"
 
 namespace {
 

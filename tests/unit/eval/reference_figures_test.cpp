@@ -4,10 +4,10 @@
 
 #include <gtest/gtest.h>
 
+#include "eval/trajectory_eval.h"
 #include "eval_fixtures.h"
 #include "hal/ground_truth.h"
 #include "support/required_data.h"
-#include "trajectory_eval.h"
 
 namespace mer::eval {
 namespace {

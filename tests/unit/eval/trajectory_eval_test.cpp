@@ -1,5 +1,5 @@
 // Association, Umeyama alignment, ATE and RPE on synthetic trajectories.
-#include "trajectory_eval.h"
+#include "eval/trajectory_eval.h"
 
 #include <cmath>
 #include <numbers>

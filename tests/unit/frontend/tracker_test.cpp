@@ -12,9 +12,9 @@
 
 #include "backend/local_ba.h"
 #include "depth/keyframe_builder.h"
+#include "eval/trajectory_eval.h"
 #include "hal/synthetic/synthetic_camera.h"
 #include "platform/alloc_counter.h"
-#include "tools/eval/trajectory_eval.h"
 
 namespace mer::frontend {
 namespace {

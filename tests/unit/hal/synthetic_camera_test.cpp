@@ -317,8 +317,9 @@ TEST(SyntheticCamera, PacedCameraKeepsItsRate) {
 // ---- Reproduction scenarios, photo textures and camera effects ----
 
 constexpr double kPi = 3.14159265358979;
-constexpr std::array<const char*, 5> kNewScenarios{"hall_turn", "room_explore", "room_rotation",
-                                                   "corridor", "room_kidnap_unknown"};
+constexpr std::array<const char*, 7> kNewScenarios{
+    "hall_turn",           "room_explore",  "room_rotation", "corridor",
+    "room_kidnap_unknown", "room_repeated", "hall_repeated"};
 
 // Small images and procedural textures: these tests need no photo package.
 SyntheticOptions procedural_options() {
@@ -840,6 +841,377 @@ TEST(SyntheticCamera, ScenarioConfigsOpenWithPhotosAndBlur) {
     cv::Scalar stddev;
     cv::meanStdDev(img, mean, stddev);
     EXPECT_GT(stddev[0], 2.0) << scenario;
+  }
+}
+
+// ---- Look-alike places: repeat_texture, room_repeated, hall_repeated ----
+
+// room_repeated as in configs/scenarios/room_repeated.yaml, small and procedural.
+SyntheticOptions room_repeated_options() {
+  SyntheticOptions o = procedural_options();
+  o.num_frames = 960;
+  o.room_size_x = 8.0;
+  o.room_size_y = 6.0;
+  o.room_height = 2.7;
+  o.num_boxes = 8;
+  o.repeat_texture = 3;
+  o.kidnap_start_s = 19.0;
+  o.kidnap_black_s = 0.15;
+  return o;
+}
+
+// hall_repeated as in configs/scenarios/hall_repeated.yaml, small and procedural.
+SyntheticOptions hall_repeated_options() {
+  SyntheticOptions o = procedural_options();
+  o.fps = 10.0;
+  o.num_frames = 400;
+  o.hall_size_x = 40.0;
+  o.hall_size_y = 20.0;
+  o.hall_height = 6.0;
+  o.drive_speed_mps = 2.2;
+  o.num_boxes = 6;
+  o.repeat_texture = 16;
+  return o;
+}
+
+// A camera `dist` m in front of the centre of `panel`, `right` m to its right as seen from
+// the room, looking straight at the wall.
+SE3d facing_panel(const SyntheticCamera& cam, const WallPanel& panel, double dist, double right) {
+  const auto a = static_cast<std::size_t>(panel.wall / 2);
+  const std::size_t pa = a == 0 ? 1 : 0;
+  Eigen::Vector3d centre;
+  centre[a] = panel.wall % 2 == 0 ? cam.room_lo()[a] : cam.room_hi()[a];
+  centre[pa] = 0.5 * (panel.u0 + panel.u1);
+  centre[2] = 0.5 * (panel.v0 + panel.v1);
+  Eigen::Vector3d inward = Eigen::Vector3d::Zero();
+  inward[a] = panel.wall % 2 == 0 ? 1.0 : -1.0;
+  const Eigen::Vector3d to_right = (-inward).cross(Eigen::Vector3d::UnitZ());
+  const Eigen::Vector3d eye = centre + dist * inward + right * to_right;
+  return look_at(eye, eye - inward, Eigen::Vector3d::UnitZ());
+}
+
+// Renders, without noise, the views `dist` m in front of panels i and j (slightly off-centre)
+// and returns their mean absolute difference and, in `max_diff`, the largest.
+double panel_view_difference(const SyntheticCamera& cam, std::size_t i, std::size_t j, double dist,
+                             double* max_diff) {
+  const CameraIntrinsics& K = cam.intrinsics();
+  cv::Mat a(K.height, K.width, CV_8UC1);
+  cv::Mat b(K.height, K.width, CV_8UC1);
+  cv::Mat depth_a(K.height, K.width, CV_32FC1);
+  cv::Mat depth_b(K.height, K.width, CV_32FC1);
+  cam.render(facing_panel(cam, cam.panels()[i], dist, 0.13), a, &depth_a, 0);
+  cam.render(facing_panel(cam, cam.panels()[j], dist, 0.13), b, &depth_b, 0);
+  EXPECT_LT(cv::norm(depth_a, depth_b, cv::NORM_INF), 1e-3) << "the same view of a flat wall";
+  if (max_diff != nullptr) *max_diff = cv::norm(a, b, cv::NORM_INF);
+  return cv::norm(a, b, cv::NORM_L1) / static_cast<double>(a.total());
+}
+
+// Every copy of the panel renders the same image from the same place in front of it (the
+// views see nothing but the panel: 25 degrees wide, 2 m away), and the panel has texture.
+void expect_identical_copies(const char* scenario, SyntheticOptions o, std::size_t copies) {
+  o.width = 160;
+  o.height = 120;
+  o.fov_x_deg = 25.0;
+  o.noise_sigma = 0.0;
+  o.num_boxes = 0;
+  SyntheticCamera cam(scenario, o, false);
+  ASSERT_TRUE(cam.open(2).is_ok()) << scenario;
+  ASSERT_EQ(cam.panels().size(), copies) << scenario;
+  std::set<int> walls;
+  for (std::size_t k = 1; k < cam.panels().size(); ++k) {
+    walls.insert(cam.panels()[k].wall);
+    double max_diff = 0.0;
+    const double mean_diff = panel_view_difference(cam, 0, k, 2.0, &max_diff);
+    EXPECT_LT(mean_diff, 0.1) << scenario << " copy " << k << " on wall " << cam.panels()[k].wall;
+    EXPECT_LE(max_diff, 2.0) << scenario << " copy " << k;
+  }
+  EXPECT_GE(walls.size(), 2U) << scenario << ": copies on two walls at least";
+  cv::Mat view(o.height, o.width, CV_8UC1);
+  cam.render(facing_panel(cam, cam.panels()[0], 2.0, 0.13), view, nullptr, 0);
+  cv::Scalar mean;
+  cv::Scalar stddev;
+  cv::meanStdDev(view, mean, stddev);
+  EXPECT_GT(stddev[0], 5.0) << scenario << ": the panel carries a picture";
+  // Without the option the same views differ: the walls differ.
+  o.repeat_texture = 0;
+  SyntheticCamera plain(scenario, o, false);
+  ASSERT_TRUE(plain.open(2).is_ok());
+  EXPECT_TRUE(plain.panels().empty());
+  cv::Mat a(o.height, o.width, CV_8UC1);
+  cv::Mat b(o.height, o.width, CV_8UC1);
+  plain.render(facing_panel(cam, cam.panels()[0], 2.0, 0.13), a, nullptr, 0);
+  plain.render(facing_panel(cam, cam.panels().back(), 2.0, 0.13), b, nullptr, 0);
+  EXPECT_GT(cv::norm(a, b, cv::NORM_L1) / static_cast<double>(a.total()), 5.0) << scenario;
+}
+
+// The reproduction scenarios before room_repeated render exactly as before repeat_texture
+// was added (procedural textures, motion blur and exposure steps on; hashes of frames 10 and
+// 100 taken before).
+TEST(SyntheticCamera, ReproductionScenariosUnchangedByDefault) {
+  struct Expected {
+    const char* scenario;
+    std::array<std::uint64_t, 4> hashes;  // gray, depth at frames 10, 100
+  };
+  const std::array<Expected, 5> expected{{
+      {"hall_turn",
+       {0xc3263d3b783f2bfbULL, 0x18f4dc96bff8765dULL, 0xf7d97d54b0505724ULL,
+        0x308df7e4144e861cULL}},
+      {"room_explore",
+       {0xb44c882a13306c2aULL, 0x9b68033a5d844679ULL, 0xc7d32d2a430c047dULL,
+        0x1b49c077131d1aedULL}},
+      {"room_rotation",
+       {0x28a04501e176fd8eULL, 0x529f04592e61ec40ULL, 0xe9130f2550b414c1ULL,
+        0x3339358611176e39ULL}},
+      {"corridor",
+       {0x1bed4b2d59161b10ULL, 0xa7337cc10e083b18ULL, 0xa8052115556325a3ULL,
+        0x39025af0c2e9bf79ULL}},
+      {"room_kidnap_unknown",
+       {0x5083f08cfcaabd65ULL, 0x02320dc43d2f60b8ULL, 0x6ea9ce2818bcfb02ULL,
+        0xdba78fc6ea855d4eULL}},
+  }};
+  for (const Expected& e : expected) {
+    SyntheticOptions o = procedural_options();
+    o.num_frames = 300;
+    o.exposure_time_s = 0.01;
+    o.exposure_step_every_s = 0.5;
+    SyntheticCamera cam(e.scenario, o, false);
+    ASSERT_TRUE(cam.open(2).is_ok());
+    ASSERT_TRUE(cam.start().is_ok());
+    std::size_t k = 0;
+    for (int i = 0; i <= 100; ++i) {
+      FrameHandle f;
+      ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+      if (i != 10 && i != 100) continue;
+      EXPECT_EQ(fnv1a(f->gray), e.hashes[k]) << e.scenario << " frame " << i << " gray";
+      EXPECT_EQ(fnv1a(f->depth), e.hashes[k + 1]) << e.scenario << " frame " << i << " depth";
+      k += 2;
+    }
+  }
+}
+
+TEST(SyntheticCamera, RepeatedPanelIsTheSameOnEveryCopy) {
+  expect_identical_copies("room_repeated", room_repeated_options(), 3);
+  expect_identical_copies("hall_repeated", hall_repeated_options(), 16);
+  // The option works in the other scenes too: four copies, one on each wall of room_orbit.
+  SyntheticOptions o = small_options();
+  o.repeat_texture = 4;
+  expect_identical_copies("room_orbit", o, 4);
+}
+
+TEST(SyntheticCamera, RepeatedPanelIsTheSameOnEveryCopyWithPhotos) {
+  SKIP_WITHOUT_PHOTOS();
+  SyntheticOptions room = room_repeated_options();
+  room.texture = "auto";
+  expect_identical_copies("room_repeated", room, 3);
+  SyntheticOptions hall = hall_repeated_options();
+  hall.texture = "auto";
+  expect_identical_copies("hall_repeated", hall, 16);
+}
+
+TEST(SyntheticCamera, RepeatedPanelsHangWhereTheScenariosSay) {
+  // room_repeated: A on the -x wall, B on the +x wall (8 m apart), C on the -y wall, centred;
+  // every other box wears the panel, and no box stands in front of a copy.
+  SyntheticCamera room("room_repeated", room_repeated_options(), false);
+  ASSERT_TRUE(room.open(2).is_ok());
+  ASSERT_EQ(room.panels().size(), 3U);
+  EXPECT_EQ(room.panels()[0].wall, 0);
+  EXPECT_EQ(room.panels()[1].wall, 1);
+  EXPECT_EQ(room.panels()[2].wall, 2);
+  for (const WallPanel& p : room.panels()) {
+    EXPECT_NEAR(0.5 * (p.u0 + p.u1), 0.0, 1e-6);
+    EXPECT_NEAR(p.u1 - p.u0, 2.0, 1e-6);
+    EXPECT_GT(p.v0, 0.5);
+    EXPECT_LT(p.v1, 2.6);
+  }
+  ASSERT_GE(room.boxes().size(), 4U);
+  int wearing = 0;
+  for (std::size_t b = 0; b < room.boxes().size(); ++b) {
+    const SceneBox& box = room.boxes()[b];
+    wearing += box.texture == kPanelTexture ? 1 : 0;
+    EXPECT_EQ(box.texture == kPanelTexture, b % 2 == 1) << "box " << b;
+    // Not between a copy and the room's centre line.
+    EXPECT_FALSE(box.lo.y() < 1.3 && box.hi.y() > -1.3 && (box.lo.x() < -0.5 || box.hi.x() > 0.5))
+        << "box " << b << " stands in front of A or B";
+    EXPECT_FALSE(box.lo.x() < 1.3 && box.hi.x() > -1.3 && box.lo.y() < 0.0)
+        << "box " << b << " stands in front of C";
+  }
+  EXPECT_GE(wearing, 2);
+  // hall_repeated: 8 copies on each long wall, every 5 m.
+  SyntheticCamera hall("hall_repeated", hall_repeated_options(), false);
+  ASSERT_TRUE(hall.open(2).is_ok());
+  ASSERT_EQ(hall.panels().size(), 16U);
+  for (std::size_t k = 0; k < 16; ++k) {
+    const WallPanel& p = hall.panels()[k];
+    EXPECT_EQ(p.wall, k < 8 ? 2 : 3);
+    EXPECT_NEAR(0.5 * (p.u0 + p.u1), -17.5 + 5.0 * static_cast<double>(k % 8), 1e-5);
+    EXPECT_NEAR(p.u1 - p.u0, 3.0, 1e-6);
+  }
+  // Off by default: no copies, no box wears the panel.
+  SyntheticCamera plain("room_repeated", procedural_options(), false);
+  ASSERT_TRUE(plain.open(2).is_ok());
+  EXPECT_TRUE(plain.panels().empty());
+  for (const SceneBox& box : plain.boxes()) EXPECT_NE(box.texture, kPanelTexture);
+}
+
+TEST(SyntheticCamera, RoomRepeatedMapsBothCopiesThenBlacksOutFacingAWithoutAJump) {
+  const SyntheticOptions o = room_repeated_options();
+  SyntheticCamera cam("room_repeated", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  ASSERT_TRUE(cam.start().is_ok());
+  const Eigen::Vector3d a_centre(cam.room_lo().x(), 0.0, 1.4);
+  const Eigen::Vector3d b_centre(cam.room_hi().x(), 0.0, 1.4);
+  std::vector<SE3d> poses;
+  std::vector<int> black;
+  bool saw_a = false;
+  bool saw_b = false;
+  for (int i = 0; i < o.num_frames; ++i) {
+    FrameHandle f;
+    ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+    poses.push_back(f->T_w_c_gt);
+    const Eigen::Vector3d axis = f->T_w_c_gt.linear().col(2);
+    if (!f->has_ground_truth) {
+      black.push_back(i);
+      EXPECT_EQ(cv::countNonZero(f->gray), 0) << "frame " << i;
+    } else if (static_cast<double>(f->t_ns) * 1e-9 < o.kidnap_start_s) {
+      saw_a = saw_a || axis.x() < -0.97;
+      saw_b = saw_b || axis.x() > 0.97;
+    }
+  }
+  // Both copies mapped before; black for 4 frames (3-5), at 19 s.
+  EXPECT_TRUE(saw_a);
+  EXPECT_TRUE(saw_b);
+  ASSERT_EQ(black.size(), 4U);
+  EXPECT_EQ(black.front(), 571);
+  EXPECT_EQ(black.back(), 574);
+  // The ground truth moves on through the blackout like a slow walk: no step larger than a
+  // walking frame's (3 cm, 2 degrees), none at the blackout larger than twice the largest of
+  // the second before it.
+  double before_t = 0.0;
+  double before_r = 0.0;
+  for (int i = 1; i < o.num_frames; ++i) {
+    const double dt = (poses[i].translation() - poses[i - 1].translation()).norm();
+    const double dr = Eigen::Quaterniond(poses[i].linear())
+                          .angularDistance(Eigen::Quaterniond(poses[i - 1].linear()));
+    EXPECT_LT(dt, 0.03) << "frame " << i;
+    EXPECT_LT(dr * 180.0 / kPi, 2.0) << "frame " << i;
+    if (i >= 541 && i < 571) {
+      before_t = std::max(before_t, dt);
+      before_r = std::max(before_r, dr);
+    }
+    if (i >= 571 && i <= 575) {
+      EXPECT_LT(dt, 2.0 * before_t) << "frame " << i;
+      EXPECT_LT(dr, 2.0 * before_r) << "frame " << i;
+      EXPECT_GT(dt, 0.0) << "frame " << i << ": the camera keeps moving";
+    }
+  }
+  // Facing A from the lap's end through the blackout and 3 s after it; B is metres behind.
+  for (int i = 545; i < 660; ++i) {
+    const SE3d& T = poses[static_cast<std::size_t>(i)];
+    EXPECT_LT(T.linear().col(2).x(), -0.9) << "frame " << i;
+    EXPECT_GT((b_centre - T.translation()).norm(), 4.0);
+    EXPECT_LT((a_centre - T.translation()).norm(), 3.5);
+  }
+  // Then it walks elsewhere: the +y half, facing the +y wall.
+  const SE3d& last = poses.back();
+  EXPECT_GT(last.translation().y(), 1.0);
+  EXPECT_GT(last.linear().col(2).y(), 0.8);
+  // A kidnap_start_s too early for the lap is refused, naming the option.
+  SyntheticOptions early = o;
+  early.kidnap_start_s = 4.0;
+  SyntheticCamera bad("room_repeated", early, false);
+  const Status s = bad.open(2);
+  EXPECT_FALSE(s.is_ok());
+  EXPECT_NE(s.message().find("kidnap_start_s"), std::string::npos) << s.message();
+}
+
+TEST(SyntheticCamera, HallRepeatedDrivesALoopBackThroughItsStart) {
+  const SyntheticOptions o = hall_repeated_options();
+  SyntheticCamera cam("hall_repeated", o, false);
+  ASSERT_TRUE(cam.open(2).is_ok());
+  const double lap = 2.0 * 20.0 + 2.0 * kPi * 6.0;  // straights of 20 m, turns of 6 m radius
+  const double lap_s = lap / o.drive_speed_mps;
+  double length = 0.0;
+  double turned = 0.0;
+  const SE3d start = cam.sample_at(0.0).T_w_c;
+  for (int i = 1; i < o.num_frames; ++i) {
+    const SE3d a = cam.sample_at((i - 1) / o.fps).T_w_c;
+    const SE3d b = cam.sample_at(i / o.fps).T_w_c;
+    const Eigen::Vector3d c = b.translation();
+    EXPECT_NEAR(c.z(), 1.65, 0.03);
+    EXPECT_NEAR((c - a.translation()).head<2>().norm() * o.fps, o.drive_speed_mps, 0.05);
+    EXPECT_TRUE((c.head<2>().array() > cam.room_lo().head<2>().array() + 3.9).all() &&
+                (c.head<2>().array() < cam.room_hi().head<2>().array() - 3.9).all())
+        << "frame " << i;
+    for (const auto& box : cam.boxes()) {
+      const double gx = std::max({0.0, box.lo.x() - c.x(), c.x() - box.hi.x()});
+      const double gy = std::max({0.0, box.lo.y() - c.y(), c.y() - box.hi.y()});
+      EXPECT_GE(std::hypot(gx, gy), 2.9);
+    }
+    if (i / o.fps <= lap_s) {
+      turned += std::remainder(heading_of(b) - heading_of(a), 2.0 * kPi);
+      length += (c - a.translation()).head<2>().norm();
+    }
+  }
+  EXPECT_NEAR(length, lap, 0.03 * lap);
+  EXPECT_NEAR(turned, 2.0 * kPi, 0.05) << "one full turn to the left";
+  // Looks 35 degrees right of its travel: at the near long wall, from 4 m.
+  EXPECT_NEAR(heading_of(start), -35.0 * kPi / 180.0, 0.03);
+  EXPECT_NEAR(start.translation().y(), cam.room_lo().y() + 4.0, 0.01);
+  // A true loop: after the lap it passes the start again, looking the same way, and drives
+  // on over the first metres (the sequence ends 40 s in).
+  const SE3d again = cam.sample_at(lap_s).T_w_c;
+  EXPECT_LT((again.translation() - start.translation()).head<2>().norm(), 1e-6);
+  EXPECT_LT(std::abs(std::remainder(heading_of(again) - heading_of(start), 2.0 * kPi)), 0.03);
+  EXPECT_GT(o.num_frames / o.fps - lap_s, 3.0);
+  // The far end is a 180 degree turn: half-way round the lap it heads -x on the +y side.
+  const SE3d half = cam.sample_at(0.5 * lap_s).T_w_c;
+  EXPECT_NEAR(half.translation().y(), cam.room_hi().y() - 4.0, 0.01);
+  // A hall wider than long is refused, naming the options.
+  SyntheticOptions square = o;
+  square.hall_size_x = 30.0;
+  square.hall_size_y = 30.0;
+  SyntheticCamera bad("hall_repeated", square, false);
+  const Status s = bad.open(2);
+  EXPECT_FALSE(s.is_ok());
+  EXPECT_NE(s.message().find("hall_size_x"), std::string::npos) << s.message();
+}
+
+TEST(SyntheticCamera, RepeatedScenariosAreDeterministicAndAllocationFree) {
+  for (const bool hall : {false, true}) {
+    const char* scenario = hall ? "hall_repeated" : "room_repeated";
+    auto run = [&](int seed, std::vector<std::uint64_t>& hashes) {
+      SyntheticOptions o = hall ? hall_repeated_options() : room_repeated_options();
+      o.width = 160;
+      o.height = 120;
+      o.seed = seed;
+      o.exposure_time_s = 0.01;
+      o.exposure_step_every_s = 0.2;
+      SyntheticCamera cam(scenario, o, false);
+      ASSERT_TRUE(cam.open(2).is_ok());
+      ASSERT_TRUE(cam.start().is_ok());
+      for (int i = 0; i < 6; ++i) {
+        FrameHandle f;
+        const auto before = platform::alloc::thread_allocations();
+        ASSERT_EQ(cam.acquire(f, 0), AcquireStatus::kFrame);
+        const std::uint64_t h = fnv1a(f->gray);  // reads the pool buffer: no allocation
+        const std::uint64_t d = fnv1a(f->depth);
+        f.reset();
+        if (i > 0) {
+          EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U)
+              << scenario << " frame " << i;
+        }
+        hashes.push_back(h);
+        hashes.push_back(d);
+      }
+    };
+    std::vector<std::uint64_t> a;
+    std::vector<std::uint64_t> b;
+    std::vector<std::uint64_t> c;
+    run(1, a);
+    run(1, b);
+    run(2, c);
+    EXPECT_EQ(a, b) << scenario << ": same seed, same images";
+    EXPECT_NE(a[10], c[10]) << scenario << ": another seed, other images";
   }
 }
 

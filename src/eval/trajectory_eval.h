@@ -1,8 +1,8 @@
 #pragma once
 /// @file trajectory_eval.h
-/// Trajectory evaluation for mer_eval: timestamp association (as evo's `associate`),
-/// Umeyama alignment (none / SE(3) / Sim(3)), absolute trajectory error (ATE) and relative
-/// pose error (RPE).
+/// Trajectory evaluation (mer_eval, and mer_slam's summary): timestamp association (as evo's
+/// `associate`), Umeyama alignment (none / SE(3) / Sim(3)), absolute trajectory error (ATE) and
+/// relative pose error (RPE).
 
 #include <cstddef>
 #include <cstdint>

@@ -1,5 +1,6 @@
 #pragma once
-/// Ground-truth check of a finished map's observations (offline, `mer_slam --gt-check`).
+/// Ground-truth check of a finished map's observations (offline, `mer_slam --gt-check`), run
+/// by the application after the pipeline has stopped.
 ///
 /// The final BA returns the poses its observations favour. Where that differs from the truth,
 /// the cause is either the estimate's history (initialization, tracking, loop closure: a
@@ -46,7 +47,7 @@
 #include "geometry/camera_model.h"
 #include "map/map.h"
 
-namespace mer::backend {
+namespace mer::eval {
 
 /// Observation rays of a point meeting at less than this leave its re-fit ill-posed, degrees.
 inline constexpr double kMinRefitParallaxDeg = 1.0;
@@ -88,10 +89,10 @@ struct GroundTruthCheckReport {
 /// Does not run (note says why) when a live keyframe has no ground-truth pose, with fewer
 /// than three keyframes, or when the ground-truth keyframe centres do not move. `seed` fixes
 /// the shuffle. No other thread may use the map meanwhile.
-GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjuster& ba,
+GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBundleAdjuster& ba,
                                                  const geometry::Pinhole& K,
                                                  std::span<const StampedPose> groundtruth,
                                                  std::int64_t max_dt_ns, bool with_scale,
                                                  int max_iterations, std::uint64_t seed);
 
-}  // namespace mer::backend
+}  // namespace mer::eval

@@ -1,11 +1,11 @@
-// The ground-truth check of a finished map (backend/groundtruth_check.h) on a synthetic
+// The ground-truth check of a finished map (eval/groundtruth_check.h) on a synthetic
 // graph whose truth is known: the map is a scaled, turned and shifted copy of the truth with
 // perturbed poses and points. Exact keypoints must give back the truth; white keypoint noise
 // must cost as much shuffled as not; a pattern in the keypoint errors (each keyframe's
 // keypoints moved as if the camera were elsewhere) must cost much more than the same errors
 // shuffled; anchored keypoints are reported apart from the others; a keyframe without ground
 // truth stops the check and is named.
-#include "backend/groundtruth_check.h"
+#include "eval/groundtruth_check.h"
 
 #include <cmath>
 #include <cstdio>
@@ -17,7 +17,7 @@
 
 #include "geometry/lie.h"
 
-namespace mer::backend {
+namespace mer::eval {
 namespace {
 
 constexpr int kKeyframes = 8;
@@ -148,8 +148,8 @@ map::MapOptions small_map() {
   return o;
 }
 
-LocalBaOptions ba_options() {
-  LocalBaOptions o;
+backend::LocalBaOptions ba_options() {
+  backend::LocalBaOptions o;
   o.depth_edges = "off";
   return o;
 }
@@ -178,7 +178,7 @@ std::vector<float> level_sigma2() {
 void run(KeypointError error, const std::vector<StampedPose>& gt, GroundTruthCheckReport& r) {
   map::Map map(small_map());
   ASSERT_NO_FATAL_FAILURE(build(map, truth_poses(), error));
-  LocalBundleAdjuster ba(ba_options(), map, level_sigma2(), true, /*metric_depth=*/false);
+  backend::LocalBundleAdjuster ba(ba_options(), map, level_sigma2(), true, /*metric_depth=*/false);
   r = check_against_groundtruth(map, ba, kK, gt, kMaxDtNs, /*with_scale=*/true, 100, 1);
 }
 
@@ -295,4 +295,4 @@ TEST(GroundTruthCheck, NoMotionIsRefused) {
 }
 
 }  // namespace
-}  // namespace mer::backend
+}  // namespace mer::eval

@@ -1,5 +1,5 @@
 // Trajectory evaluation: association, Umeyama alignment, ATE and RPE (see trajectory_eval.h).
-#include "trajectory_eval.h"
+#include "eval/trajectory_eval.h"
 
 #include <algorithm>
 #include <cmath>

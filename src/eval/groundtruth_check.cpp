@@ -1,4 +1,4 @@
-#include "backend/groundtruth_check.h"
+#include "eval/groundtruth_check.h"
 
 #include <algorithm>
 #include <array>
@@ -14,7 +14,7 @@
 #include "features/keypoint.h"
 #include "geometry/triangulation.h"
 
-namespace mer::backend {
+namespace mer::eval {
 namespace {
 
 constexpr int kRefitIterations = 10;         // Gauss-Newton steps of a point re-fit
@@ -118,7 +118,7 @@ struct KeyframeMove {
 
 }  // namespace
 
-GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjuster& ba,
+GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBundleAdjuster& ba,
                                                  const geometry::Pinhole& K,
                                                  std::span<const StampedPose> groundtruth,
                                                  std::int64_t max_dt_ns, bool with_scale,
@@ -270,7 +270,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   }
 
   // 3. The full BA from the truth, on the map's own observations.
-  LocalBaReport r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
+  backend::LocalBaReport r = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
   rep.iterations_converged = r.iterations;
   rep.converged = map.live_keyframe_poses();
 
@@ -297,7 +297,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
     }
     for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
     for (const auto& [p, X] : start) map.set_point_position(p, X);
-    const LocalBaReport rs = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
+    const backend::LocalBaReport rs = ba.optimize_full(K, max_iterations, /*cull_points=*/false);
     poses = map.live_keyframe_poses();
     return rs.iterations;
   };
@@ -310,4 +310,4 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, LocalBundleAdjus
   return rep;
 }
 
-}  // namespace mer::backend
+}  // namespace mer::eval
