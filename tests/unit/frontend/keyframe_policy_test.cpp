@@ -173,7 +173,9 @@ TEST(KeyframePolicy, ParallaxGateHoldsAllButTheCountUntilTheCameraHasMoved) {
   const Eigen::Vector3d start(1.0, 2.0, 0.5);
   policy.reset(300, 0, start);
   // Bunched-up inliers, fewer than 0.6 of the keyframe's: spread and ratio would both fire.
-  KeyframeEvidence e = evidence(Spread(120, kWidth / 4.0F, kHeight), nullptr);
+  // (The spreads outlive the evidence that points into them.)
+  const Spread bunched(120, kWidth / 4.0F, kHeight);
+  KeyframeEvidence e = evidence(bunched, nullptr);
   e.median_depth = 2.0;
   e.centre_w = start + Eigen::Vector3d(0.05, 0.0, 0.0);  // 0.05 / 2 = 0.025 < 0.03
   EXPECT_EQ(policy.decide(e), KeyframeReason::kNone);
@@ -181,7 +183,8 @@ TEST(KeyframePolicy, ParallaxGateHoldsAllButTheCountUntilTheCameraHasMoved) {
   e.centre_w = start + Eigen::Vector3d(0.0, 0.0, 0.07);  // 0.035: the gate opens
   EXPECT_EQ(policy.decide(e), KeyframeReason::kTooFewInliers);
   // The absolute count is not gated: losing the map must still make a keyframe.
-  KeyframeEvidence few = evidence(Spread(40), nullptr);
+  const Spread forty(40);
+  KeyframeEvidence few = evidence(forty, nullptr);
   few.median_depth = 2.0;
   few.centre_w = start;
   EXPECT_EQ(policy.decide(few), KeyframeReason::kTooFewInliers);
