@@ -190,7 +190,6 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int 
     report.note = gt.status().message();
     return Status::ok();
   }
-  constexpr std::int64_t kMaxDtNs = 1'000'000;  // estimate and truth share frame timestamps
   constexpr std::uint64_t kShuffleSeed = 1;
   // A metric map (RGB-D) is aligned without scale, as its ATE is.
   const bool with_scale = sensor_mode != "rgbd";
