@@ -39,11 +39,17 @@ std::int32_t elapsed_ns(std::int64_t t0) {
       platform::monotonic_now_ns() - t0, std::numeric_limits<std::int32_t>::max()));
 }
 
+// The element of rank n/2 of [first, last) (the upper median), found in place; 0 when empty.
+template <class It>
+double median_of(It first, It last) {
+  if (first == last) return 0.0;
+  const It mid = first + (last - first) / 2;
+  std::nth_element(first, mid, last);
+  return static_cast<double>(*mid);
+}
+
 double median_of(std::vector<double>& v) {
-  if (v.empty()) return 0.0;
-  auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  return median_of(v.begin(), v.end());
 }
 
 /// Sensor depth at sub-pixel (x, y), refused across depth edges (geometry::sample_depth).
@@ -570,11 +576,8 @@ bool Tracker::within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
 
 double Tracker::recent_found_share() const {
   if (found_valid_ == 0) return 0.0;
-  std::array<float, kFoundHistory> v = found_share_;
-  const auto end = v.begin() + static_cast<std::ptrdiff_t>(found_valid_);
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(found_valid_ / 2);
-  std::nth_element(v.begin(), mid, end);
-  return *mid;
+  std::array<float, kFoundHistory> v = found_share_;  // a copy: the ring keeps its order
+  return median_of(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(found_valid_));
 }
 
 void Tracker::reject_candidate() {
