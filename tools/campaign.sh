@@ -20,6 +20,11 @@
 #                  corridor, room_kidnap_unknown, seeds 1-3; printed in a table of their own:
 #                  frames, first frame with a pose, % tracked after it (summary.json
 #                  accuracy.tracked_after_init_pct), frames lost, ATE (m and % of the path)
+#          lookalike  the look-alike places, room_repeated and hall_repeated (configs/
+#                  scenarios), seeds 1-3, in the hard table; its last columns count, against
+#                  the ground truth (summary.json gt_audit), the accepted relocalizations
+#                  and closed loops that were wrong (more than 0.10 m / 0.5 m off) and all
+#                  of them, and the map segments at the end
 #          robust  orbit and loop seeds under four small keyframe-policy changes besides the
 #                  default (tracking.keyframe.min_baseline_ratio 0.05 / 0.015, min_spread
 #                  0.40 / 0.50): counts the runs that diverge (re-anchored ATE above
@@ -71,7 +76,7 @@ while [ $# -gt 0 ]; do
     --gt-check) GT_CHECK=(--gt-check); shift ;;
     --photo-set) PHOTO_SET="${2:?--photo-set needs all, dev or heldout}"; shift 2 ;;
     -h|--help) usage 0 ;;
-    orbit|loop|hall|kitti|robust|hard) sets+=("$1"); shift ;;
+    orbit|loop|hall|kitti|robust|hard|lookalike) sets+=("$1"); shift ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
 done
@@ -122,9 +127,13 @@ run_one() {
     first="$(awk -F, 'NR > 1 && $3 != "not_initialized" && $3 != "lost" { print $1; exit }' \
       "$dir/frames.csv")"
     frames="$(sed -n 's/.*"frames_processed": \([0-9]*\).*/\1/p' <<< "$s" | head -n 1)"
-    printf '%-30s %7s %7s %9s %6s %9s %9s\n' "$name" "${frames:--}" "${first:--}" \
+    local segs
+    segs="$( (grep -o '"merged_into"' "$dir/summary.json" || true) | wc -l)"
+    printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s\n' "$name" "${frames:--}" "${first:--}" \
       "$(field accuracy tracked_after_init_pct)" "$(field tracking lost)" \
-      "$(field accuracy ate_rmse_m)" "$(field accuracy ate_pct_of_path)" >> "$HARD_RESULTS"
+      "$(field accuracy ate_rmse_m)" "$(field accuracy ate_pct_of_path)" \
+      "$(field gt_audit relocalizations_wrong)/$(field gt_audit relocalizations)" \
+      "$(field gt_audit loops_wrong)/$(field gt_audit loops)" "$segs" >> "$HARD_RESULTS"
     if [ "$KEEP" -eq 0 ]; then
       find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml \
         ! -name frames.csv -delete
@@ -191,6 +200,12 @@ for set in "${sets[@]}"; do
         for s in $(seeds_of 1 2 3); do queue "hard_${n}_s$s" "synthetic:$n" "$(hard_yaml "$n" "$s")"; done
       done
       ;;
+    lookalike)
+      for n in room_repeated hall_repeated; do
+        [ -r "$ROOT/configs/scenarios/$n.yaml" ] || die "missing configs/scenarios/$n.yaml"
+        for s in $(seeds_of 1 2 3); do queue "hard_${n}_s$s" "synthetic:$n" "$(hard_yaml "$n" "$s")"; done
+      done
+      ;;
     robust)
       for p in "def:" "mbr05:min_baseline_ratio: 0.05" "mbr015:min_baseline_ratio: 0.015" \
                "ms040:min_spread: 0.40" "ms050:min_spread: 0.50"; do
@@ -213,7 +228,8 @@ wait || true
 sort -o "$RESULTS" "$RESULTS"
 if [ -s "$HARD_RESULTS" ]; then
   sort -o "$HARD_RESULTS" "$HARD_RESULTS"
-  printf '%-30s %7s %7s %9s %6s %9s %9s\n' run frames first tracked% lost ate_m ate%
+  printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s\n' run frames first tracked% lost ate_m ate% \
+    reloc_bad loop_bad segs
   cat "$HARD_RESULTS"
   awk '$2 != "failed:" { n++; if ($4 != "-") { t += $4; m++ } } $2 == "failed:" { f++ }
     END { printf "hard runs %d, failed %d", n + f, f + 0

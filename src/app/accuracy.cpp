@@ -6,6 +6,8 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <numbers>
 #include <sstream>
 #include <string>
 
@@ -21,25 +23,34 @@ constexpr std::int64_t kMaxDtNs = 1'000'000;       // estimate and truth share f
 constexpr std::size_t kMinPairs = 3;               // Umeyama needs three points
 constexpr double kMaxQuaternionNormError = 1e-6;   // written with 9 decimals
 constexpr double kUnanchoredPoseTolerance = 1e-6;  // both files print the same pose, 9 decimals
+
+/// Loads `dir`/groundtruth.txt into `gt`; false with the reason in `note` when the source had
+/// none or it cannot be read.
+bool load_groundtruth(const std::string& dir, hal::Trajectory& gt, std::string& note) {
+  const std::string gt_path = (std::filesystem::path(dir) / "groundtruth.txt").string();
+  std::error_code ec;
+  if (dir.empty() || std::filesystem::file_size(gt_path, ec) == 0 || ec) {
+    note = "no ground truth from this source";
+    return false;
+  }
+  auto r = hal::load_tum_trajectory(gt_path);
+  if (!r.is_ok()) {
+    note = r.status().message();
+    return false;
+  }
+  gt = std::move(r.value());
+  return true;
+}
 }  // namespace
 
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
                             const pipeline::PipelineStats& stats, const std::string& trajectory) {
   AccuracyReport a;
-  const std::filesystem::path d(dir);
-  const std::string gt_path = (d / "groundtruth.txt").string();
-  const std::string est_path = (d / trajectory).string();
+  const std::string est_path = (std::filesystem::path(dir) / trajectory).string();
+  hal::Trajectory gt;
+  if (!load_groundtruth(dir, gt, a.note)) return a;
   std::error_code ec;
-  if (dir.empty() || std::filesystem::file_size(gt_path, ec) == 0 || ec) {
-    a.note = "no ground truth from this source";
-    return a;
-  }
-  auto gt = hal::load_tum_trajectory(gt_path);
-  if (!gt.is_ok()) {
-    a.note = gt.status().message();
-    return a;
-  }
-  a.gt_frames = gt.value().poses.size();
+  a.gt_frames = gt.poses.size();
   const std::uint64_t tracked = stats.frames_processed - stats.frames_lost;
   if (std::filesystem::file_size(est_path, ec) == 0 || ec) {
     a.note = "no tracked frame";
@@ -50,13 +61,13 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
     a.note = est.status().message();
     return a;
   }
-  const auto pairs = eval::associate(gt.value(), est.value(), kMaxDtNs);
+  const auto pairs = eval::associate(gt, est.value(), kMaxDtNs);
   if (pairs.size() < kMinPairs) {
     a.note = "fewer than 3 tracked frames";
     return a;
   }
   const eval::Alignment al = sensor_mode == "rgbd" ? eval::Alignment::kSe3 : eval::Alignment::kSim3;
-  const eval::EvalResult r = eval::evaluate(gt.value(), est.value(), pairs, al);
+  const eval::EvalResult r = eval::evaluate(gt, est.value(), pairs, al);
   a.available = true;
   a.alignment = eval::alignment_name(al);
   a.pairs = r.pairs;
@@ -66,7 +77,7 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
   a.ate_median_m = r.ate_median_m;
   a.ate_max_m = r.ate_max_m;
   // Path length of the ground truth between the first and last associated frame.
-  const auto& g = gt.value().poses;
+  const auto& g = gt.poses;
   const std::int64_t t_first = est.value().poses.front().t_ns;
   const std::int64_t t_last = est.value().poses.back().t_ns;
   for (std::size_t i = 1; i < g.size(); ++i) {
@@ -82,6 +93,109 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
         100.0 * static_cast<double>(tracked) / static_cast<double>(since_init);
   }
   return a;
+}
+
+namespace {
+
+/// The ground-truth pose at t_ns (nearest within kMaxDtNs); false when there is none.
+bool gt_pose_at(const hal::Trajectory& gt, std::int64_t t_ns, SE3d& T_w_c) {
+  const auto& p = gt.poses;
+  auto it = std::lower_bound(p.begin(), p.end(), t_ns,
+                             [](const StampedPose& a, std::int64_t t) { return a.t_ns < t; });
+  std::int64_t best = kMaxDtNs + 1;
+  for (auto c : {it, it == p.begin() ? it : std::prev(it)}) {
+    if (c == p.end()) continue;
+    const std::int64_t dt = std::llabs(c->t_ns - t_ns);
+    if (dt < best) {
+      best = dt;
+      T_w_c = c->T_w_c;
+    }
+  }
+  return best <= kMaxDtNs;
+}
+
+/// Scores the estimated relative pose (rotation R_est, translation t_est in map units) of
+/// view b in view a against the truth.
+void score_relative(const hal::Trajectory& gt, std::int64_t t_a, std::int64_t t_b,
+                    const Eigen::Matrix3d& R_est, const Eigen::Vector3d& t_est, double scale,
+                    EventAudit& e) {
+  SE3d T_w_a;
+  SE3d T_w_b;
+  if (!gt_pose_at(gt, t_a, T_w_a) || !gt_pose_at(gt, t_b, T_w_b)) return;
+  const SE3d T_a_b = T_w_a.inverse() * T_w_b;
+  e.scored = true;
+  e.gt_distance_m = T_a_b.translation().norm();
+  e.error_m = (scale * t_est - T_a_b.translation()).norm();
+  const Eigen::AngleAxisd d(R_est.transpose() * T_a_b.rotation());
+  e.error_deg = d.angle() * 180.0 / std::numbers::pi;
+}
+
+double ns_to_s(std::int64_t t_ns) {
+  return static_cast<double>(t_ns) * 1e-9;
+}
+
+}  // namespace
+
+EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineStats& stats,
+                              const std::vector<AccuracyReport>& segments) {
+  EventAuditReport rep;
+  hal::Trajectory gt;
+  if (!load_groundtruth(dir, gt, rep.note)) return rep;
+  rep.available = true;
+  auto scale_of = [&](std::uint16_t segment, double& scale) {
+    for (std::size_t i = 0; i < stats.segments.size() && i < segments.size(); ++i) {
+      if (stats.segments[i].id == segment && segments[i].available) {
+        scale = segments[i].scale;
+        return true;
+      }
+    }
+    return false;
+  };
+  for (const pipeline::RelocalizationEvent& r : stats.relocalization.events) {
+    EventAudit e;
+    e.kind = "relocalization";
+    e.confirmed = r.confirmed;
+    e.found_ratio = r.found_ratio;
+    e.seq = r.seq;
+    e.t_s = ns_to_s(r.t_ns);
+    e.other_t_s = ns_to_s(r.keyframe_t_ns);
+    e.segment = r.segment;
+    if (double scale = 1.0; scale_of(r.segment, scale)) {
+      score_relative(gt, r.keyframe_t_ns, r.t_ns, r.T_kf_c.rotation(), r.T_kf_c.translation(),
+                     scale, e);
+    }
+    if (e.scored) {
+      ++rep.relocalizations;
+      e.wrong = e.error_m > kWrongRelocalizationM;
+      rep.relocalizations_wrong += e.wrong ? 1 : 0;
+    }
+    rep.events.push_back(e);
+  }
+  for (const mer::loop::LoopClosureEvent& l : stats.loop.closures) {
+    EventAudit e;
+    e.kind = "loop";
+    e.found_new = l.found_new;
+    e.found_old = l.found_old;
+    e.found_usual = l.found_usual;
+    e.drift = l.drift;
+    e.connected = l.connected;
+    e.seq = l.seq;
+    e.t_s = ns_to_s(l.t_ns);
+    e.other_t_s = ns_to_s(l.loop_t_ns);
+    e.segment = l.segment;
+    // sim_old_new maps the new camera's frame into the old one's: its rotation and translation
+    // are the new camera's relative pose, in the old keyframe's map units.
+    if (double scale = 1.0; scale_of(l.segment, scale)) {
+      score_relative(gt, l.loop_t_ns, l.t_ns, l.sim_old_new.R, l.sim_old_new.t, scale, e);
+    }
+    if (e.scored) {
+      ++rep.loops;
+      e.wrong = e.error_m > kWrongLoopM;
+      rep.loops_wrong += e.wrong ? 1 : 0;
+    }
+    rep.events.push_back(e);
+  }
+  return rep;
 }
 
 Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames) {

@@ -37,6 +37,51 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
                             const pipeline::PipelineStats& stats,
                             const std::string& trajectory = "trajectory.txt");
 
+/// A relocalization or loop closure further from the truth than this is counted as wrong, m.
+inline constexpr double kWrongRelocalizationM = 0.10;
+inline constexpr double kWrongLoopM = 0.50;
+
+/// One accepted relocalization or closed loop, checked against the ground truth: the
+/// estimated relative pose between its two views (the frame and the keyframe it was matched
+/// to; the new and the old keyframe of a loop), scaled to metres by its segment's alignment,
+/// against the true one.
+struct EventAudit {
+  std::string kind;            ///< relocalization | loop
+  std::uint64_t seq = 0;       ///< the frame (relocalization) or the new keyframe's (loop)
+  double t_s = 0.0;            ///< its timestamp, s
+  double other_t_s = 0.0;      ///< the matched keyframe's timestamp, s
+  std::uint16_t segment = 0;   ///< segment it happened in
+  bool scored = false;         ///< both views had ground truth and the segment a scale
+  double gt_distance_m = 0.0;  ///< true distance between the two camera centres
+  double error_m = 0.0;        ///< estimated vs true relative position
+  double error_deg = 0.0;      ///< estimated vs true relative rotation
+  bool wrong = false;          ///< error_m above kWrongRelocalizationM / kWrongLoopM
+  double found_new = 0.0;      ///< loop: LoopClosureEvent::found_new
+  double found_old = 0.0;      ///< loop: LoopClosureEvent::found_old
+  double found_usual = 0.0;    ///< loop: LoopClosureEvent::found_usual
+  double drift = 0.0;          ///< loop: LoopClosureEvent::drift
+  bool connected = false;      ///< loop: LoopClosureEvent::connected
+  bool confirmed = false;      ///< relocalization: confirmed on following frames
+  double found_ratio = 0.0;    ///< relocalization: RelocalizationEvent::found_ratio
+};
+
+/// Ground-truth audit of a run's relocalizations and loop closures.
+struct EventAuditReport {
+  bool available = false;         ///< the source had ground truth
+  std::string note;               ///< why not
+  int relocalizations = 0;        ///< accepted relocalizations scored
+  int relocalizations_wrong = 0;  ///< of those, more than kWrongRelocalizationM off
+  int loops = 0;                  ///< closed loops scored
+  int loops_wrong = 0;            ///< of those, more than kWrongLoopM off
+  std::vector<EventAudit> events;
+};
+
+/// Scores the run's accepted relocalizations and closed loops (PipelineStats) against
+/// `dir`/groundtruth.txt; `segments` are the per-segment ATE reports (their Sim(3) scale turns
+/// map units into metres), in the order of stats.segments.
+EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineStats& stats,
+                              const std::vector<AccuracyReport>& segments);
+
 /// Reads `path` (frame_anchors.txt: `t kf_t tx ty tz qx qy qz qw`, kf_t `-` for a frame
 /// without anchor) into `frames`, whose t_ns and T_w_c (from trajectory.txt) are set:
 /// line k must carry frame k's timestamp. Errors name the file and line.

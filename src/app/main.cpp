@@ -129,6 +129,7 @@ int main(int argc, char** argv) {
       info.accuracy_segments.push_back(
           app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(), g.trajectory));
     }
+    info.events = app::audit_events(args.output_dir, pipe.stats(), info.accuracy_segments);
     if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
       if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
                                                  info.final_trajectory);

@@ -260,7 +260,12 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"last_loop_seq\": " << lp.last_loop.loop_seq
     << ", \"last_inliers\": " << lp.last_loop.inliers
     << ", \"last_scale\": " << num(lp.last_loop.scale)
-    << ", \"last_shift\": " << num(lp.last_loop.shift) << "},\n";
+    << ", \"last_shift\": " << num(lp.last_loop.shift)
+    << ", \"excluded_connected\": " << lp.excluded_connected
+    << ", \"rejected\": {\"few_matches\": " << lp.rejected.few_matches
+    << ", \"few_inliers\": " << lp.rejected.few_inliers << ", \"drift\": " << lp.rejected.drift
+    << ", \"not_found\": " << lp.rejected.not_found
+    << ", \"inconsistent\": " << lp.rejected.inconsistent << "}},\n";
   const pipeline::RelocalizationStats& rl = st.relocalization;
   j << "  \"relocalization\": {\"enabled\": " << (rl.enabled ? "true" : "false")
     << ", \"lost_spells\": " << tc.lost_spells << ", \"max_lost_frames\": " << tc.max_lost_frames
@@ -276,6 +281,35 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"confirmed\": " << tc.relocalization_confirmed
     << ", \"rejected\": {\"lost_while_confirming\": " << tc.relocalization_rejected_lost
     << ", \"few_found_in_view\": " << tc.relocalization_rejected_found << "}},\n";
+  // Ground-truth audit of relocalizations and loops (when the source had ground truth).
+  if (info.events.available) {
+    const EventAuditReport& ev = info.events;
+    j << "  \"gt_audit\": {\"wrong_relocalization_m\": " << num(kWrongRelocalizationM)
+      << ", \"wrong_loop_m\": " << num(kWrongLoopM)
+      << ", \"relocalizations\": " << ev.relocalizations
+      << ", \"relocalizations_wrong\": " << ev.relocalizations_wrong << ", \"loops\": " << ev.loops
+      << ", \"loops_wrong\": " << ev.loops_wrong << ", \"events\": [";
+    for (std::size_t i = 0; i < ev.events.size(); ++i) {
+      const EventAudit& e = ev.events[i];
+      j << (i ? "," : "") << "\n    {\"kind\": " << json_string(e.kind) << ", \"seq\": " << e.seq
+        << ", \"t_s\": " << num(e.t_s) << ", \"other_t_s\": " << num(e.other_t_s)
+        << ", \"segment\": " << e.segment << ", \"scored\": " << (e.scored ? "true" : "false")
+        << ", \"gt_distance_m\": " << num(e.gt_distance_m) << ", \"error_m\": " << num(e.error_m)
+        << ", \"error_deg\": " << num(e.error_deg)
+        << ", \"wrong\": " << (e.wrong ? "true" : "false");
+      if (e.kind == "relocalization") {
+        j << ", \"confirmed\": " << (e.confirmed ? "true" : "false")
+          << ", \"found_ratio\": " << num(e.found_ratio);
+      }
+      if (e.kind == "loop") {
+        j << ", \"found_new\": " << num(e.found_new) << ", \"found_old\": " << num(e.found_old)
+          << ", \"found_usual\": " << num(e.found_usual) << ", \"drift\": " << num(e.drift)
+          << ", \"connected\": " << (e.connected ? "true" : "false");
+      }
+      j << "}";
+    }
+    j << (ev.events.empty() ? "" : "\n  ") << "]},\n";
+  }
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -353,6 +387,12 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << "  loops closed: " << st.loop.loops_closed << " (last onto frame "
        << st.loop.last_loop.loop_seq << ", scale " << std::setprecision(4)
        << st.loop.last_loop.scale << ", " << st.loop.merged_points << " points merged)\n";
+  }
+  if (info.events.available && !info.events.events.empty()) {
+    const EventAuditReport& ev = info.events;
+    os << "  against the ground truth: " << ev.relocalizations_wrong << " of " << ev.relocalizations
+       << " relocalizations more than " << kWrongRelocalizationM << " m off, " << ev.loops_wrong
+       << " of " << ev.loops << " loops more than " << kWrongLoopM << " m off\n";
   }
   if (info.accuracy_final.available) {
     const AccuracyReport& a = info.accuracy_final;

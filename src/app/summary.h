@@ -34,7 +34,8 @@ struct RunInfo {
   AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
   /// ATE of each segment's own trajectory file, aligned on its own (PipelineStats::segments)
   std::vector<AccuracyReport> accuracy_segments;
-  bool final_trajectory_written = false;            ///< trajectory_final.txt was written
+  EventAuditReport events;                ///< relocalizations and loops against the ground truth
+  bool final_trajectory_written = false;  ///< trajectory_final.txt was written
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored
   AccuracyReport accuracy_final;          ///< ATE of trajectory_final.txt (frames on the final map)
   bool gt_check_requested = false;        ///< --gt-check

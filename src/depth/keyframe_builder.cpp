@@ -9,6 +9,7 @@
 #include <Eigen/SVD>
 #include <opencv2/imgproc.hpp>
 
+#include "core/median.h"
 #include "depth/external_depth.h"
 #include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
@@ -35,6 +36,9 @@ KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map
                                  DepthMapSource* depth_maps)
     : opts_(opts),
       mode_(std::move(mode)),
+      rgbd_(mode_ == "rgbd"),
+      merge_duplicates_(opts.fuse_merge_duplicates == "on" ||
+                        (opts.fuse_merge_duplicates == "auto" && rgbd_)),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
       metric_depth_sigma_rel_(metric_depth_sigma_rel),
@@ -42,9 +46,9 @@ KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map
 
 Status KeyframeBuilder::init() {
   std::string backend = opts_.backend;
-  if (backend == "auto") backend = mode_ == "rgbd" ? "rgbd" : "triangulation";
+  if (backend == "auto") backend = rgbd_ ? "rgbd" : "triangulation";
   if (backend == "rgbd") {
-    if (mode_ != "rgbd") {
+    if (!rgbd_) {
       return invalid_argument("key 'depth.backend': 'rgbd' needs pipeline.mode rgbd");
     }
     backend_ = std::make_unique<RgbdDepth>(opts_.rgbd);
@@ -61,8 +65,7 @@ Status KeyframeBuilder::init() {
           "key 'depth.backend': 'external' needs depth maps (key 'depth.external.folder')");
     }
     backend_ = std::make_unique<ExternalDepth>(opts_.external, *depth_maps_);
-    fit_depth_ = metric_depth_sigma_rel_ > 0.0 && backend_->scale() == DepthScale::kMetric &&
-                 mode_ == "rgbd";
+    fit_depth_ = metric_depth_sigma_rel_ > 0.0 && backend_->scale() == DepthScale::kMetric && rgbd_;
   } else {
     backend_ = std::make_unique<TriangulationDepth>(opts_.triangulation);
   }
@@ -95,8 +98,26 @@ Status KeyframeBuilder::init() {
   return Status::ok();
 }
 
+map::KeyframeId KeyframeBuilder::newest_in_segment(std::uint16_t segment) const {
+  const map::KeyframeId newest = map_.newest_keyframe();
+  if (newest == map::kNoId || map_.keyframe_segment(newest) == segment) return newest;
+  // Another segment made the last keyframe: the newest of this one, by creation order.
+  map::KeyframeId best = map::kNoId;
+  std::uint64_t best_serial = 0;
+  for (map::KeyframeId id = 0; id < map_.num_keyframes(); ++id) {
+    if (!map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment) continue;
+    const std::uint64_t serial = map_.keyframe_serial(id);
+    if (best == map::kNoId || serial > best_serial) {
+      best = id;
+      best_serial = serial;
+    }
+  }
+  return best;
+}
+
 void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
   // Keyframes observing the tracked points, by count; the newest keyframe always qualifies.
+  // Only keyframes of the job's segment: another segment's are in an unrelated world frame.
   neighbour_ids_.clear();
   std::vector<std::pair<std::uint32_t, std::uint32_t>> counts;  // (kf, count), small
   for (int i = 0; i < job.num_keypoints; ++i) {
@@ -105,6 +126,7 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
     const std::size_t no = map_.point_observations(p, obs_);
     for (std::size_t o = 0; o < no; ++o) {
       const std::uint32_t kf = obs_[o].first;
+      if (map_.keyframe_segment(kf) != job.segment) continue;
       auto it =
           std::find_if(counts.begin(), counts.end(), [kf](const auto& c) { return c.first == kf; });
       if (it == counts.end()) {
@@ -116,7 +138,7 @@ void KeyframeBuilder::pick_neighbours(const map::KeyframeJob& job) {
   }
   std::stable_sort(counts.begin(), counts.end(),
                    [](const auto& a, const auto& b) { return a.second > b.second; });
-  const std::uint32_t newest = map_.newest_keyframe();
+  const map::KeyframeId newest = newest_in_segment(job.segment);
   if (newest != map::kNoId) neighbour_ids_.push_back(newest);
   for (const auto& c : counts) {
     if (static_cast<int>(neighbour_ids_.size()) >= opts_.neighbours) break;
@@ -132,11 +154,13 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   // point is that point's duplicate and the two are merged (fuse_merge_duplicates).
   const auto n = static_cast<std::size_t>(job.num_keypoints);
   merged_ = 0;
-  if (opts_.fuse_keyframes <= 0 || n == 0 || map_.newest_keyframe() == map::kNoId) return 0;
-  fuse_kfs_.assign(neighbour_ids_.begin(), neighbour_ids_.end());
+  const map::KeyframeId newest = newest_in_segment(job.segment);
+  if (opts_.fuse_keyframes <= 0 || n == 0 || newest == map::kNoId) return 0;
+  fuse_kfs_.assign(neighbour_ids_.begin(), neighbour_ids_.end());  // of the job's segment
   std::vector<map::CovisibleKeyframe> covis(static_cast<std::size_t>(opts_.fuse_keyframes));
-  const std::size_t nc = map_.covisible_keyframes(map_.newest_keyframe(), covis);
+  const std::size_t nc = map_.covisible_keyframes(newest, covis);
   for (std::size_t i = 0; i < nc; ++i) {
+    if (map_.keyframe_segment(covis[i].id) != job.segment) continue;
     if (std::find(fuse_kfs_.begin(), fuse_kfs_.end(), covis[i].id) == fuse_kfs_.end()) {
       fuse_kfs_.push_back(covis[i].id);
     }
@@ -169,8 +193,7 @@ int KeyframeBuilder::fuse_local_points(const map::KeyframeJob& job) {
   const double log_scale = std::log(std::max(1.0001, levels > 1 ? level_scale(1) : 1.2));
   // Merging needs old and new points in one scale: RGB-D mode's metric depth gives it; a
   // monocular map's scale drifts between them (merges there bent the map).
-  const bool merge = opts_.fuse_merge_duplicates == "on" ||
-                     (opts_.fuse_merge_duplicates == "auto" && mode_ == "rgbd");
+  const bool merge = merge_duplicates_;
   std::fill_n(fuse_dist_.begin(), n, std::numeric_limits<int>::max());
   std::vector<std::uint32_t> fused_point(n, map::kNoId);
   for (const std::uint32_t p : fuse_points_) {
@@ -632,15 +655,11 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
     if (z > 0.0) ratios_.push_back(z / depth_[i]);
   }
   rep.scale_samples = static_cast<int>(ratios_.size());
-  if (!ratios_.empty()) {
-    auto mid = ratios_.begin() + static_cast<std::ptrdiff_t>(ratios_.size() / 2);
-    std::nth_element(ratios_.begin(), mid, ratios_.end());
-    rep.scale_ratio = *mid;
-  }
+  if (!ratios_.empty()) rep.scale_ratio = upper_median(ratios_);
   // Depth already in map units (triangulation) or metric in an RGB-D (metric) map is kept;
   // anything else is aligned, and refused without enough samples.
   const bool needs_alignment = backend_->scale() == DepthScale::kUnknown ||
-                               (backend_->scale() == DepthScale::kMetric && mode_ != "rgbd");
+                               (backend_->scale() == DepthScale::kMetric && !rgbd_);
   if (needs_alignment) {
     if (rep.scale_samples >= opts_.min_scale_samples) {
       for (std::size_t i = 0; i < n; ++i) depth_[i] *= static_cast<float>(rep.scale_ratio);

@@ -95,10 +95,12 @@ class KeyframeBuilder {
   /// Keyframe depth is metric sensor depth in a metric (RGB-D) map: the back end may use it
   /// as is (3D-3D edges without a per-keyframe scale).
   bool metric_map_depth() const {
-    return backend_ && backend_->scale() == DepthScale::kMetric && mode_ == "rgbd";
+    return backend_ && backend_->scale() == DepthScale::kMetric && rgbd_;
   }
 
  private:
+  /// The newest live keyframe of `segment` (kNoId when it has none yet).
+  map::KeyframeId newest_in_segment(std::uint16_t segment) const;
   void pick_neighbours(const map::KeyframeJob& job);
   void refine_point(std::uint32_t p, const geometry::Pinhole& K);
   int fuse_local_points(const map::KeyframeJob& job);
@@ -144,6 +146,8 @@ class KeyframeBuilder {
 
   DepthOptions opts_;
   std::string mode_;
+  bool rgbd_;              ///< mode_ is rgbd (parsed once)
+  bool merge_duplicates_;  ///< fuse_merge_duplicates resolved for the mode (parsed once)
   map::Map& map_;
   std::vector<float> level_sigma2_;
   double metric_depth_sigma_rel_;

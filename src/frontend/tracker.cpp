@@ -6,6 +6,7 @@
 #include <mutex>
 #include <numbers>
 
+#include "core/median.h"
 #include "geometry/depth_sampling.h"
 #include "geometry/self_calibration.h"
 #include "geometry/two_view.h"
@@ -34,22 +35,19 @@ SE3d orthonormalized(const SE3d& T) {
   return out;
 }
 
+// A share f of the motion T: rotation angle and translation scaled by f (a frame's share of
+// a motion over several frames; exact for constant motion to first order in the rotation).
+SE3d fraction_of_motion(const SE3d& T, double f) {
+  const Eigen::AngleAxisd aa(T.linear());
+  SE3d out = SE3d::Identity();
+  out.linear() = Eigen::AngleAxisd(aa.angle() * f, aa.axis()).toRotationMatrix();
+  out.translation() = T.translation() * f;
+  return out;
+}
+
 std::int32_t elapsed_ns(std::int64_t t0) {
   return static_cast<std::int32_t>(std::min<std::int64_t>(
       platform::monotonic_now_ns() - t0, std::numeric_limits<std::int32_t>::max()));
-}
-
-// The element of rank n/2 of [first, last) (the upper median), found in place; 0 when empty.
-template <class It>
-double median_of(It first, It last) {
-  if (first == last) return 0.0;
-  const It mid = first + (last - first) / 2;
-  std::nth_element(first, mid, last);
-  return static_cast<double>(*mid);
-}
-
-double median_of(std::vector<double>& v) {
-  return median_of(v.begin(), v.end());
 }
 
 /// Sensor depth at sub-pixel (x, y), refused across depth edges (geometry::sample_depth).
@@ -69,6 +67,7 @@ Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pin
       width_(width),
       height_(height),
       mode_(std::move(mode)),
+      rgbd_(mode_ == "rgbd"),
       policy_(opts.keyframe.for_mode(mode_), width, height) {
   spatial_max_age_ns_ = static_cast<std::int64_t>(opts.spatial_max_age_s * 1e9);
   focal_.estimated = focal_auto;
@@ -465,7 +464,7 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
     histogram_.add(cand_kf_[c]);
     depth_scratch_.push_back((T2 * corr_X_[i]).z());
   }
-  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   MER_LOG_DEBUG("frame %llu: %d inliers of %d map-points in view",
                 static_cast<unsigned long long>(r.seq), inliers, last_in_view_);
   return true;
@@ -475,7 +474,7 @@ void Tracker::update_focal(double f, std::uint64_t seq) {
   if (!(f > 0.0) || !std::isfinite(f)) return;
   if (focal_estimates_.size() < focal_estimates_.capacity()) focal_estimates_.push_back(f);
   depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
-  const double med = median_of(depth_scratch_);
+  const double med = upper_median(depth_scratch_);
   focal_.estimates = static_cast<int>(focal_estimates_.size());
   focal_.value = med;
   focal_stable_count_ =
@@ -503,6 +502,18 @@ void Tracker::fix_focal_at_init(std::uint64_t seq) {
 void Tracker::advance_state(TrackingResult& r) {
   if (r.state == TrackState::kTracked) {
     state_ = TrackerState::kTracking;
+    // The velocity the motion bound carries the last pose on with: from two consecutive
+    // tracked frames of one segment, at rest otherwise.
+    const double dt = static_cast<double>(r.t_ns - last_tracked_t_ns_) * 1e-9;
+    last_tracked_omega_.setZero();
+    last_tracked_velocity_.setZero();
+    if (lost_frames_ == 0 && last_tracked_segment_ == segment_ && last_tracked_t_ns_ > 0 &&
+        dt > 0.0) {
+      const Eigen::AngleAxisd turn(T_c_w_.linear() * last_tracked_T_c_w_.linear().transpose());
+      last_tracked_omega_ = turn.axis() * (turn.angle() / dt);
+      last_tracked_velocity_ =
+          (T_c_w_.inverse().translation() - last_tracked_T_c_w_.inverse().translation()) / dt;
+    }
     lost_frames_ = 0;
     last_tracked_t_ns_ = r.t_ns;
     last_tracked_T_c_w_ = T_c_w_;
@@ -560,24 +571,32 @@ bool Tracker::within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
   const RelocalizationCheckOptions& o = opts_.relocalization_check;
   const double lost_s = static_cast<double>(t_ns - last_tracked_t_ns_) * 1e-9;
   if (segment != last_tracked_segment_ || lost_s > o.short_loss_s) return false;
-  const double moved =
-      (T_c_w.inverse().translation() - last_tracked_T_c_w_.inverse().translation()).norm();
+  // Where the last tracked velocity was taking the camera.
+  const double w = last_tracked_omega_.norm();
+  const Eigen::Matrix3d R_pred =
+      (w > 0.0 ? Eigen::AngleAxisd(w * lost_s, last_tracked_omega_ / w).toRotationMatrix()
+               : Eigen::Matrix3d::Identity()) *
+      last_tracked_T_c_w_.linear();
+  const Eigen::Vector3d c_pred =
+      last_tracked_T_c_w_.inverse().translation() + last_tracked_velocity_ * lost_s;
+  const double moved = (T_c_w.inverse().translation() - c_pred).norm();
   const double turned_deg =
-      Eigen::AngleAxisd(T_c_w.linear() * last_tracked_T_c_w_.linear().transpose()).angle() *
-      kRadToDeg;
+      Eigen::AngleAxisd(T_c_w.linear() * R_pred.transpose()).angle() * kRadToDeg;
+  const double half_t2 = 0.5 * lost_s * lost_s;
   const double max_moved =
-      (o.max_speed_depths_per_s * lost_s + o.margin_depths) * last_tracked_median_depth_;
-  const double max_turned_deg = o.max_turn_deg_per_s * lost_s + o.margin_deg;
+      (o.max_accel_depths_per_s2 * half_t2 + o.margin_depths) * last_tracked_median_depth_;
+  const double max_turned_deg = o.max_angular_accel_deg_per_s2 * half_t2 + o.margin_deg;
   MER_LOG_DEBUG(
-      "relocalization after %.2f s: moved %.3f (bound %.3f), turned %.1f deg (bound %.1f)", lost_s,
-      moved, max_moved, turned_deg, max_turned_deg);
+      "relocalization after %.2f s: %.3f from the predicted position (bound %.3f), %.1f deg "
+      "from the predicted orientation (bound %.1f)",
+      lost_s, moved, max_moved, turned_deg, max_turned_deg);
   return moved <= max_moved && turned_deg <= max_turned_deg;
 }
 
 double Tracker::recent_found_share() const {
   if (found_valid_ == 0) return 0.0;
   std::array<float, kFoundHistory> v = found_share_;  // a copy: the ring keeps its order
-  return median_of(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(found_valid_));
+  return upper_median(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(found_valid_));
 }
 
 void Tracker::reject_candidate() {
@@ -589,9 +608,9 @@ void Tracker::reject_candidate() {
   have_pose_ = false;
   poor_prediction_ = true;
   velocity_ = SE3d::Identity();
-  if (candidate_returning_) {  // back to initializing the new segment it returned from
+  if (candidate_returning_) {  // back to the segment it returned from
     segment_ = candidate_segment_before_;
-    initialized_ = false;
+    initialized_ = candidate_initialized_before_;
     candidate_returning_ = false;
   }
 }
@@ -608,10 +627,11 @@ bool Tracker::return_to_segment_of_hint() {
     const float d = map_.keyframe_depth(hint_.keyframe, k);
     if (d > 0.0F) depth_scratch_.push_back(d);
   }
-  if (!depth_scratch_.empty()) median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  if (!depth_scratch_.empty()) median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   segment_ = seg;
-  initialized_ = true;
-  ref_valid_ = false;
+  initialized_ = true;  // (a new segment's two-view reference is kept: the return may fail)
+  anchor_kf_ = hint_.keyframe;
+  anchor_generation_ = hint_.generation;
   return true;
 }
 
@@ -660,11 +680,14 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     poor_prediction_ = true;
     reloc_keyframe_ = hint_.keyframe;
     reloc_generation_ = hint_.generation;
+    // (Threaded: the relocalizer's pose may be of a frame some frames back.)
+    hint_frames_ = frame.seq > hint_.seq ? frame.seq - hint_.seq : 1U;
     if (!check.enabled || within_motion_bound(hint_.T_c_w, frame.t_ns, segment_)) {
       ++counters_.relocalization_trusted;
     } else {
       candidate_ = true;
       candidate_frames_ = 0;
+      candidate_min_ratio_ = std::numeric_limits<double>::infinity();
       ++counters_.relocalization_candidates;
     }
   }
@@ -695,6 +718,11 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     return false;
   }
   velocity_ = orthonormalized(T_c_w_ * T_c_w_prev.inverse());
+  if (from_hint && hint_frames_ > 1) {
+    // The motion since a relocalizer's pose of an earlier frame spans several frames: the
+    // next prediction takes one frame's share of it.
+    velocity_ = fraction_of_motion(velocity_, 1.0 / static_cast<double>(hint_frames_));
+  }
   have_pose_ = true;
   poor_prediction_ = false;
   bool confirmed = false;
@@ -702,6 +730,7 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   if (candidate_) {
     // A confirming frame must see the place, not only a pattern it shares with another one.
     const double usual = recent_found_share();
+    candidate_min_ratio_ = std::min(candidate_min_ratio_, usual > 0.0 ? found / usual : 0.0);
     if (found < check.min_found_fraction * usual) {
       ++counters_.relocalization_rejected_found;
       MER_LOG_INFO(
@@ -755,6 +784,15 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     // Back in the map at a place it knew: a keyframe ties the frames that follow to it.
     reason = KeyframeReason::kRelocalization;
     r.relocalized = true;
+    r.reloc_confirmed = confirmed;
+    r.reloc_found_ratio = confirmed ? static_cast<float>(candidate_min_ratio_) : 0.0F;
+    SE3d T_w_rkf;
+    if (reloc_keyframe_ != map::kNoId &&
+        map_.keyframe_generation(reloc_keyframe_) == reloc_generation_ &&
+        map_.keyframe_pose(reloc_keyframe_, T_w_rkf)) {
+      r.reloc_keyframe_t_ns = map_.keyframe_t_ns(reloc_keyframe_);
+      r.T_rkf_c = T_w_rkf.inverse() * r.T_w_c;
+    }
     ++counters_.relocalized;
     MER_LOG_INFO("frame %llu: relocalized (%d inliers) after %llu lost frames",
                  static_cast<unsigned long long>(frame.seq), r.num_inliers,
@@ -890,7 +928,7 @@ bool Tracker::focal_from_reference(int matches) {
   for (std::size_t i = 0; i < init_uv0_.size(); ++i) {
     depth_scratch_.push_back((init_uv1_[i] - init_uv0_[i]).norm());
   }
-  if (median_of(depth_scratch_) < opts_.focal.min_disparity_px) return false;
+  if (upper_median(depth_scratch_) < opts_.focal.min_disparity_px) return false;
   const geometry::FocalEstimate est = geometry::estimate_focal_two_view(
       init_uv0_, init_uv1_, K_.cx, K_.cy, focal_.initial, opts_.pnp.seed);
   if (!est.ok) {
@@ -900,7 +938,7 @@ bool Tracker::focal_from_reference(int matches) {
   }
   focal_estimates_.push_back(est.focal);
   depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
-  const double med = median_of(depth_scratch_);
+  const double med = upper_median(depth_scratch_);
   K_ = K_.with_focal(med);
   focal_.value = med;
   focal_.estimates = static_cast<int>(focal_estimates_.size());
@@ -1017,7 +1055,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
     depth_scratch_.push_back((tv.T_c1_c0 * tv.points_c0[i]).z());
   }
   map_.update_covisibility(kf1.value());
-  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   T_c_w_ = orthonormalized(tv.T_c1_c0);
   velocity_ = SE3d::Identity();
   have_pose_ = true;
@@ -1027,6 +1065,7 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
     counters_.initialized_seq = frame.seq;
     counters_.reference_seq = ref_seq_;
   }
+  counters_.segment_reference_seq = ref_seq_;
   counters_.initialized = true;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
@@ -1119,7 +1158,7 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
     depth_scratch_.push_back(depth[i]);
     ++ni;
   }
-  median_depth_ = std::max(median_of(depth_scratch_), 1e-6);
+  median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   T_c_w_ = SE3d::Identity();
   velocity_ = SE3d::Identity();
   have_pose_ = true;
@@ -1150,31 +1189,50 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
 // ---- Entry point -------------------------------------------------------------------------
 
 void Tracker::follow_map_correction() {
-  if (map_.correction_count() == correction_count_seen_) return;
+  const std::uint32_t total = map_.correction_count();
+  if (total == correction_count_seen_ && segment_ == correction_segment_) return;
   geometry::Sim3d S;
   std::uint32_t count = 0;
-  if (!map_.read_correction(S, count)) return;  // retried at the next frame
+  if (!map_.read_correction(segment_, S, count)) return;  // retried at the next frame
+  correction_count_seen_ = total;
+  if (segment_ != correction_segment_) {
+    // Tracking is in another segment since the last frame (a new one, or a return to an
+    // earlier one): its pose came from that segment's map as it is now, corrections included.
+    correction_segment_ = segment_;
+    correction_seen_ = S;
+    correction_segment_count_ = count;
+    return;
+  }
+  if (count == correction_segment_count_) return;  // only other segments were corrected
   // The part published since the last frame: S * seen^-1.
   const geometry::Sim3d D = S * correction_seen_.inverse();
   correction_seen_ = S;
-  correction_count_seen_ = count;
+  correction_segment_count_ = count;
   if (have_pose_) T_c_w_ = geometry::apply_to_pose(D, T_c_w_.inverse()).inverse();
   last_T_w_c_ = geometry::apply_to_pose(D, last_T_w_c_);
   for (SE3d& T : recent_T_w_c_) T = geometry::apply_to_pose(D, T);
   velocity_.translation() *= D.s;
   median_depth_ *= D.s;
-  MER_LOG_INFO("tracking follows a map correction (scale %.4f, shift %.3f)", D.s, D.t.norm());
+  MER_LOG_INFO("tracking follows a map correction of segment %u (scale %.4f, shift %.3f)",
+               unsigned{segment_}, D.s, D.t.norm());
 }
 
-void Tracker::set_anchor(TrackingResult& r) const {
+void Tracker::set_anchor(TrackingResult& r) {
   // The newest keyframe: the smallest offset. (The keyframe most tracked points come from,
   // ORB-SLAM's reference keyframe, gave 10-40 % larger errors on room_orbit seeds 1, 2, 5.)
-  const map::KeyframeId kf = map_.newest_keyframe();
-  SE3d T_w_kf;
-  if (kf == map::kNoId || map_.keyframe_segment(kf) != segment_ ||
-      !map_.keyframe_pose(kf, T_w_kf)) {
+  map::KeyframeId kf = map_.newest_keyframe();
+  if (kf != map::kNoId && map_.keyframe_segment(kf) == segment_) {
+    anchor_kf_ = kf;
+    anchor_generation_ = map_.keyframe_generation(kf);
+  } else if (anchor_kf_ != map::kNoId &&
+             map_.keyframe_generation(anchor_kf_) == anchor_generation_ &&
+             map_.keyframe_segment(anchor_kf_) == segment_) {
+    kf = anchor_kf_;  // the newest is another segment's (a return, before its keyframe is made)
+  } else {
     return;
   }
+  SE3d T_w_kf;
+  if (!map_.keyframe_pose(kf, T_w_kf)) return;
   r.has_anchor = true;
   r.anchor_t_ns = map_.keyframe_t_ns(kf);
   r.T_kf_c = T_w_kf.inverse() * r.T_w_c;
@@ -1215,13 +1273,18 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     while (platform::monotonic_now_ns() < until) {
     }
   }
-  // In a new segment, a relocalizer's pose returns to the segment it was found in.
+  // A relocalizer's pose against another segment's keyframe (lost in a new segment, or
+  // relocalizing in one) returns to the segment it was found in.
   const std::uint16_t segment_before = segment_;
-  const bool returning = !initialized_ && hint_.valid && state_ == TrackerState::kNewSegment;
+  const bool initialized_before = initialized_;
+  const bool returning =
+      hint_.valid &&
+      (state_ == TrackerState::kNewSegment || state_ == TrackerState::kRelocalizing) &&
+      map_.keyframe_segment(hint_.keyframe) != segment_;
   if (returning && !return_to_segment_of_hint()) hint_.valid = false;
   if (!initialized_) {
     r.state = TrackState::kNotInitialized;
-    if (mode_ == "rgbd") {
+    if (rgbd_) {
       (void)initialize_rgbd(frame, r);
     } else {
       (void)initialize_mono(frame, r);
@@ -1234,9 +1297,14 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
   if (returning && candidate_) {
     candidate_returning_ = true;  // decided when the candidate is confirmed or refused
     candidate_segment_before_ = segment_before;
+    candidate_initialized_before_ = initialized_before;
   } else if (returning && !tracked) {
-    segment_ = segment_before;  // not found after all: go on initializing the new segment
-    initialized_ = false;
+    // Not found after all: back to the segment it came from (initializing it, or
+    // relocalizing from its last tracked pose).
+    segment_ = segment_before;
+    initialized_ = initialized_before;
+    T_c_w_ = last_tracked_T_c_w_;
+    median_depth_ = last_tracked_median_depth_;
   } else if (returning && segment_ != segment_before) {
     ++counters_.segment_returns;
   }

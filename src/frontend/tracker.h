@@ -83,10 +83,11 @@ struct RelocalizationHint {
 
 /// Counters of the tracker (summary.json `tracking`).
 struct TrackerCounters {
-  std::uint64_t init_attempts = 0;    ///< two-view reconstructions tried
-  std::uint64_t init_refusals = 0;    ///< of which refused (degenerate)
-  std::uint64_t initialized_seq = 0;  ///< frame the map was initialized at
-  std::uint64_t reference_seq = 0;    ///< its reference frame (the world frame in mono)
+  std::uint64_t init_attempts = 0;          ///< two-view reconstructions tried
+  std::uint64_t init_refusals = 0;          ///< of which refused (degenerate)
+  std::uint64_t initialized_seq = 0;        ///< frame the map was initialized at
+  std::uint64_t reference_seq = 0;          ///< its reference frame (the world frame in mono)
+  std::uint64_t segment_reference_seq = 0;  ///< reference frame of the latest segment's start
   bool initialized = false;
   std::uint64_t tracked = 0;
   std::uint64_t lost = 0;
@@ -99,7 +100,7 @@ struct TrackerCounters {
   std::uint64_t lost_spells = 0;              ///< times tracking went from tracked to lost
   std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
   std::uint64_t new_segments = 0;             ///< map segments started after a lost spell
-  std::uint64_t segment_returns = 0;  ///< from new_segment, relocalized into an earlier segment
+  std::uint64_t segment_returns = 0;  ///< relocalized into another segment than the one tracked
   std::uint64_t relocalization_trusted = 0;     ///< poses within the motion bound, trusted at once
   std::uint64_t relocalization_candidates = 0;  ///< poses that needed confirmation
   std::uint64_t relocalization_confirmed = 0;   ///< of those, confirmed
@@ -161,6 +162,8 @@ class Tracker {
   const FocalReport& focal() const { return focal_; }
   const TrackerCounters& counters() const { return counters_; }
   const geometry::Pinhole& intrinsics() const { return K_; }
+  /// The per-frame motion (world-to-camera) the next frame's prediction applies.
+  const SE3d& velocity() const { return velocity_; }
 
  private:
   /// Best and second-best descriptor distance among the keypoints within `r` px of `uv` on
@@ -181,8 +184,10 @@ class Tracker {
   /// corrections published since the last frame (loop closure), so that the prediction
   /// lands where the corrected map is.
   void follow_map_correction();
-  /// Fills r's anchor: its pose relative to the map's newest keyframe (none yet: no anchor).
-  void set_anchor(TrackingResult& r) const;
+  /// Fills r's anchor: its pose relative to the map's newest keyframe when that is of the
+  /// tracked segment, else to the last keyframe of the segment anchored to (after a return to
+  /// an earlier segment: the keyframe relocalized against); none when neither is live.
+  void set_anchor(TrackingResult& r);
   bool track(const hal::Frame& frame, TrackingResult& r);
   bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
   bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
@@ -214,6 +219,7 @@ class Tracker {
   int width_;
   int height_;
   std::string mode_;
+  bool rgbd_;  // mode_ is rgbd (parsed once, not per frame)
   FocalReport focal_;
   TrackerCounters counters_;
   std::unique_ptr<features::Extractor> extractor_;
@@ -259,9 +265,12 @@ class Tracker {
   std::size_t recent_next_ = 0;
   std::vector<std::uint32_t> qt_keyframes_;
 
-  // Loop corrections of the map followed so far (Map::publish_correction).
-  geometry::Sim3d correction_seen_;
+  // Loop corrections of the map followed so far (Map::publish_correction): all segments'
+  // count, and the tracked segment's cumulative correction and count.
   std::uint32_t correction_count_seen_ = 0;
+  std::uint16_t correction_segment_ = 0;
+  geometry::Sim3d correction_seen_;
+  std::uint32_t correction_segment_count_ = 0;
 
   std::int64_t spatial_max_age_ns_ = 0;  // Q_S: older reference keyframes skipped (0: none)
   std::int64_t frame_t_ns_ = 0;          // timestamp of the frame being tracked
@@ -318,11 +327,18 @@ class Tracker {
   SE3d last_tracked_T_c_w_ = SE3d::Identity();  // and its pose, segment and median depth
   std::uint16_t last_tracked_segment_ = 0;
   double last_tracked_median_depth_ = 1.0;
+  Eigen::Vector3d last_tracked_omega_ = Eigen::Vector3d::Zero();     // turn rate, rad/s (left)
+  Eigen::Vector3d last_tracked_velocity_ = Eigen::Vector3d::Zero();  // centre, map units / s
   // A relocalization being confirmed (tracking.relocalization_check).
-  bool candidate_ = false;                      // a candidate pose is being confirmed
-  int candidate_frames_ = 0;                    // frames it has been confirmed in so far
-  bool candidate_returning_ = false;            // it returns from a new segment to an earlier one
-  std::uint16_t candidate_segment_before_ = 0;  // the new segment it returns from
+  bool candidate_ = false;            // a candidate pose is being confirmed
+  int candidate_frames_ = 0;          // frames it has been confirmed in so far
+  double candidate_min_ratio_ = 0.0;  // lowest found share / usual share over those frames
+  bool candidate_returning_ = false;  // it returns from another segment (set_anchor)
+  std::uint16_t candidate_segment_before_ = 0;  // the segment it returns from
+  bool candidate_initialized_before_ = false;   // whether that segment was initialized
+  std::uint64_t hint_frames_ = 1;               // frames between the relocalizer's pose and its use
+  map::KeyframeId anchor_kf_ = map::kNoId;      // keyframe of segment_ anchored to (set_anchor)
+  map::Generation anchor_generation_ = map::kNoGeneration;
   int last_in_view_ = 0;  // map-points the last estimate_pose projected into view
   // Found share (inliers / map-points in view) of the last tracked frames: a ring.
   static constexpr std::size_t kFoundHistory = 16;

@@ -7,6 +7,7 @@
 #include "frontend/keyframe_policy.h"
 #include "geometry/pnp.h"
 #include "geometry/two_view.h"
+#include "map/map_types.h"
 
 namespace mer::frontend {
 
@@ -121,9 +122,12 @@ struct FocalOptions {
 };
 
 /// When a relocalizer's pose is trusted (`tracking.relocalization_check`). After a short loss
-/// the camera cannot be far from the last tracked pose: a pose within the motion bound (the
-/// farthest and fastest motion assumed, scaled by the time lost and, for translation, by the
-/// median depth of the last tracked frame, so that it holds in map units) is trusted at once.
+/// the camera cannot be far from where its last tracked motion was taking it: a pose within
+/// the motion bound is trusted at once. The bound is centred on the last tracked pose carried
+/// on at the last tracked velocity (rotation and translation, from the last two tracked
+/// frames; at rest when they were not consecutive) and grows with the largest acceleration
+/// assumed, as a t^2 / 2 over the time lost t, plus a margin; translation is in median scene
+/// depths of the last tracked frame, so that it holds in map units.
 /// A pose outside the bound, or any pose after a longer loss, is a candidate: the following
 /// frames are tracked from it against the local map, and it is trusted only when
 /// `confirm_frames` of them in a row are tracked, each finding (as PnP inliers) a share of
@@ -132,13 +136,13 @@ struct FocalOptions {
 /// explains the matched pattern but not the rest of the view. Frames of a candidate
 /// are reported lost and write nothing to the map; a candidate that fails is counted by reason.
 struct RelocalizationCheckOptions {
-  bool enabled = true;                  ///< check relocalizations (off: trust every pose found)
-  double short_loss_s = 0.5;            ///< a loss up to this long is bounded by motion, s
-  double max_speed_depths_per_s = 2.0;  ///< fastest camera motion assumed, median depths / s
-  double max_turn_deg_per_s = 180.0;    ///< fastest camera turn assumed, deg / s
-  double margin_depths = 0.1;           ///< translation bound margin, median depths
-  double margin_deg = 10.0;             ///< rotation bound margin, deg
-  int confirm_frames = 3;               ///< frames a candidate must be tracked in, in a row
+  bool enabled = true;                   ///< check relocalizations (off: trust every pose found)
+  double short_loss_s = 0.5;             ///< a loss up to this long is bounded by motion, s
+  double max_accel_depths_per_s2 = 4.0;  ///< largest acceleration assumed, median depths / s^2
+  double max_angular_accel_deg_per_s2 = 360.0;  ///< largest angular acceleration, deg / s^2
+  double margin_depths = 0.1;                   ///< translation bound margin, median depths
+  double margin_deg = 10.0;                     ///< rotation bound margin, deg
+  int confirm_frames = 3;                       ///< frames a candidate must be tracked in, in a row
   double min_found_fraction = 0.4;  ///< confirming frame's found share / recent median, at least
 
   template <class V>
@@ -151,12 +155,14 @@ struct RelocalizationCheckOptions {
             "a loss up to this long bounds where the camera can be (from the last tracked pose); "
             "after a longer one every relocalization is confirmed on the following frames, s",
             options::Range<double>{0.0, 1e6});
-    v.field("max_speed_depths_per_s", max_speed_depths_per_s,
-            "fastest camera motion the bound assumes, in median scene depths (of the last "
-            "tracked frame) per second",
+    v.field("max_accel_depths_per_s2", max_accel_depths_per_s2,
+            "largest change of the camera's velocity the bound assumes, in median scene depths "
+            "(of the last tracked frame) per second squared: after t seconds lost the camera "
+            "is within a t^2 / 2 of where its last velocity was taking it",
             options::Range<double>{0.0, 1e6});
-    v.field("max_turn_deg_per_s", max_turn_deg_per_s,
-            "fastest camera turn the bound assumes, degrees per second",
+    v.field("max_angular_accel_deg_per_s2", max_angular_accel_deg_per_s2,
+            "largest change of the camera's turn rate the bound assumes, degrees per second "
+            "squared (as max_accel_depths_per_s2, for the orientation)",
             options::Range<double>{0.0, 1e6});
     v.field("margin_depths", margin_depths,
             "added to the translation bound, in median scene depths",
@@ -245,7 +251,7 @@ struct TrackingOptions {
     v.field("max_segments", max_segments,
             "map segments a run may have, the first included; once reached, tracking stays "
             "lost (relocalizing) instead",
-            options::Range<int>{1, 1000});
+            options::Range<int>{1, int{map::kMaxSegments}});
     v.field("busy_work_us", busy_work_us,
             "extra busy-wait per frame, us (simulates a heavier tracker; 0 in normal use)",
             options::Range<int>{0, 10000000});

@@ -102,11 +102,18 @@ struct TrackingResult {
   /// RelocalizationRequest with Tracker::fill_relocalization_request while the frame's
   /// features are still the tracker's (before its next spin_once).
   bool relocalization_request = false;
-  bool relocalized = false;       ///< tracked from a relocalizer's pose (after a lost spell)
-  std::uint16_t segment = 0;      ///< map segment whose world frame T_w_c is in (0: the first)
-  bool is_keyframe = false;       ///< this frame became a keyframe
-  bool keyframe_job = false;      ///< the keyframe still has to be created (queue a job)
-  SE3d T_w_c = SE3d::Identity();  ///< camera-to-world pose (valid when tracked)
+  bool relocalized = false;  ///< tracked from a relocalizer's pose (after a lost spell)
+  /// When relocalized: the keyframe the relocalizer matched (its timestamp, ns; 0 when it was
+  /// culled meanwhile) and the frame's pose relative to it as the map held it then
+  /// (T_rkf_c = T_w_kf^-1 T_w_c), for ground-truth audits of relocalizations.
+  std::int64_t reloc_keyframe_t_ns = 0;
+  SE3d T_rkf_c = SE3d::Identity();
+  bool reloc_confirmed = false;    ///< confirmed on following frames (not trusted at once)
+  float reloc_found_ratio = 0.0F;  ///< confirmed: lowest found share / usual share meanwhile
+  std::uint16_t segment = 0;       ///< map segment whose world frame T_w_c is in (0: the first)
+  bool is_keyframe = false;        ///< this frame became a keyframe
+  bool keyframe_job = false;       ///< the keyframe still has to be created (queue a job)
+  SE3d T_w_c = SE3d::Identity();   ///< camera-to-world pose (valid when tracked)
   /// Tracked with a keyframe in the map: the pose relative to the newest keyframe as the map
   /// held it then (T_kf_c = T_w_kf^-1 T_w_c), to re-anchor the frame to the final map.
   bool has_anchor = false;

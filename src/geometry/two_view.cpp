@@ -10,6 +10,7 @@
 #include <Eigen/LU>
 #include <Eigen/SVD>
 
+#include "core/median.h"
 #include "geometry/triangulation.h"
 
 namespace mer::geometry {
@@ -588,11 +589,9 @@ MotionSigma refine_motion(Motion& m, std::span<const Eigen::Vector2d> uv0,
   return sigma;
 }
 
+/// Upper median of a copy of v (0 when empty).
 double median_of(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  return upper_median(v);
 }
 
 /// Inliers of the best rotation-only model x1 ~ K R K^-1 x0, fitted (orthogonal Procrustes

@@ -11,6 +11,7 @@
 #include <ceres/ceres.h>
 
 #include "backend/local_ba.h"
+#include "core/median.h"
 #include "geometry/random.h"
 #include "loop/descriptor_match.h"
 #include "platform/log_ring.h"
@@ -33,6 +34,8 @@ constexpr std::size_t kMaxLoopEdges = 4096;
 constexpr double kMaxLoopScale = 2.0;
 /// Refits of a loop similarity on its inliers before the inlier set is taken as settled.
 constexpr int kRefitRounds = 3;
+/// Nanoseconds per second (min_time_gap_s).
+constexpr double kNsPerS = 1e9;
 /// A point this close to a camera's plane (map units) stops a refinement step.
 constexpr double kMinRefineDepth = 1e-6;
 
@@ -205,14 +208,25 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   const std::span<const double> key_scores = db_.score_keyframe(kf);
   const map::KeyframeId n = map_.num_keyframes();
   const std::uint16_t segment = map_.keyframe_segment(kf);
+  const std::int64_t t_kf = map_.keyframe_t_ns(kf);
+  const auto min_gap_ns = static_cast<std::int64_t>(opts_.min_time_gap_s * kNsPerS);
   for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
     // Another segment's keyframes are in an unrelated world frame: a match with one is a
     // merge of two segments, not a loop within one.
     if (id == kf || !map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment ||
-        map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial) {
+        map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial ||
+        map_.keyframe_t_ns(id) + min_gap_ns > t_kf) {
       continue;
     }
-    if (const std::uint32_t w = map_.covisibility_weight(kf, id); w > 0) {
+    if (const std::uint32_t w =
+            std::max(map_.covisibility_weight(kf, id), map_.covisibility_weight(id, kf));
+        w > 0) {
+      // Joined to the new keyframe through shared points already: the same place as far as
+      // the map knows, nothing for a loop to add (exclude_connected).
+      if (opts_.exclude_connected) {
+        ++totals_.excluded_connected;
+        continue;
+      }
       ranked.push_back(Candidate{true, static_cast<double>(w), id});
     } else {
       scored.push_back(Candidate{false, key_scores[id], id});
@@ -223,9 +237,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     std::vector<double> v;
     v.reserve(scored.size());
     for (const Candidate& c : scored) v.push_back(c.score);
-    const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-    std::nth_element(v.begin(), mid, v.end());
-    bar = opts_.min_key_score_ratio * *mid;
+    bar = opts_.min_key_score_ratio * upper_median(v);
     for (const Candidate& c : scored) {
       if (c.score >= bar) ranked.push_back(c);
     }
@@ -249,8 +261,14 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     int matches = 0;
     int inliers = 0;
     Sim3d sim;  ///< S_cand_new
+    double drift = 0.0;
+    double found_new = 0.0;
+    double found_old = 0.0;
+    bool connected = false;  ///< it shared points with the new keyframe
+    double usual = 0.0;      ///< usual_found_share of the new keyframe
   };
   Best best;
+  double usual = -1.0;  // usual_found_share(kf), computed when first needed
   for (const Candidate& c : ranked) {
     const map::KeyframeId cand = c.id;
     ++rep.candidates;
@@ -260,7 +278,10 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
                   static_cast<unsigned long long>(map_.keyframe_seq(kf)),
                   static_cast<unsigned long long>(map_.keyframe_seq(cand)),
                   c.covisible ? "shared points" : "key score", c.score, m);
-    if (m < opts_.min_matches) continue;
+    if (m < opts_.min_matches) {
+      ++totals_.rejected.few_matches;
+      continue;
+    }
     Sim3d S_cand_new;
     int inliers = ransac_sim3(kf, cand, K, S_cand_new);
     MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
@@ -279,19 +300,44 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       MER_LOG_DEBUG("loop: refined on reprojection: %d agree (scale %.4f, 3D fit %.4f)", inliers,
                     S_cand_new.s, s_fit);
     }
-    if (inliers < opts_.min_inliers || inliers <= best.inliers) continue;
+    if (inliers < opts_.min_inliers) {
+      ++totals_.rejected.few_inliers;
+      continue;
+    }
+    if (inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
     // travelled since the old one (perceptual aliasing: a similar place far away).
     const double drift = implied_drift(kf, cand, S_cand_new);
     if (drift > opts_.max_drift_fraction) {
       MER_LOG_DEBUG("loop: refused, it implies %.1f %% drift", 100.0 * drift);
       ++rep.refused_drift;
+      ++totals_.rejected.drift;
       continue;
     }
-    best = Best{cand, m, inliers, S_cand_new};
+    // Both ways: the similarity must find the surroundings too, not only what the two places
+    // share (a repeated poster matches its copy; the walls around it do not).
+    double found_new = 0.0;
+    double found_old = 0.0;
+    found_both_ways(kf, cand, S_cand_new, K, found_new, found_old);
+    if (usual < 0.0) usual = usual_found_share(kf, K);
+    MER_LOG_DEBUG(
+        "loop: found both ways: %.2f of the old points in the new view, %.2f of the "
+        "new in the old view (%.2f with its own neighbour)",
+        found_new, found_old, usual);
+    if (std::min(found_new, found_old) < opts_.min_found_fraction * usual) {
+      ++rep.refused_found;
+      ++totals_.rejected.not_found;
+      continue;
+    }
+    best = Best{cand, m, inliers, S_cand_new, drift, found_new, found_old, c.covisible, usual};
     best_matches_.swap(matches_);
     best_inlier_.swap(inlier_);
     best_old_views_.swap(old_views_);
+  }
+  if (best.cand == map::kNoId && pending_.count > 0 &&
+      serial > pending_.serial + kConsistencyWindowKeyframes) {
+    ++totals_.rejected.inconsistent;  // not seen again in time
+    pending_ = Pending{};
   }
   if (best.cand != map::kNoId) {
     const map::KeyframeId cand = best.cand;
@@ -303,6 +349,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
         (cand == pending_.cand || map_.covisibility_weight(cand, pending_.cand) > 0 ||
          map_.covisibility_weight(pending_.cand, cand) > 0);
     const int agreeing = same_place ? pending_.count + 1 : 1;
+    if (!same_place && pending_.count > 0) ++totals_.rejected.inconsistent;
     MER_LOG_DEBUG("loop: %d of %d consecutive checks agree", agreeing, opts_.consistent_checks);
     if (agreeing < opts_.consistent_checks) {
       pending_ = Pending{cand, serial, agreeing};
@@ -316,7 +363,13 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.inliers = best.inliers;
       rep.loop_keyframe = cand;
       rep.loop_seq = map_.keyframe_seq(cand);
+      rep.loop_t_ns = map_.keyframe_t_ns(cand);
       rep.similarity = best.sim;
+      rep.found_new = best.found_new;
+      rep.found_old = best.found_old;
+      rep.drift = best.drift;
+      rep.connected = best.connected;
+      rep.found_usual = best.usual;
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
       rep.closed = true;
     }
@@ -340,6 +393,12 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     ++totals_.loops_closed;
     totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
     totals_.last_loop = rep;
+    if (totals_.closures.size() < kMaxLoopEvents) {
+      totals_.closures.push_back(LoopClosureEvent{
+          map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.loop_t_ns,
+          map_.keyframe_segment(kf), rep.inliers, rep.found_new, rep.found_old, rep.found_usual,
+          rep.drift, rep.connected, rep.similarity});
+    }
     totals_.max_full_ba_ms = std::max(totals_.max_full_ba_ms, rep.full_ba_ms);
   }
   totals_.max_ms = std::max(totals_.max_ms, rep.ms);
@@ -353,8 +412,12 @@ double LoopCloser::implied_drift(map::KeyframeId kf, map::KeyframeId cand,
   if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_cand)) {
     return std::numeric_limits<double>::infinity();
   }
-  const Eigen::Vector3d corrected = (Sim3d::from_se3(T_w_cand) * S_cand_new).t;
-  const double shift = (corrected - T_w_new.translation()).norm();
+  const Sim3d S_w_corrected = Sim3d::from_se3(T_w_cand) * S_cand_new;
+  // What the new keyframe sees moves by the centre's shift plus, at its median depth, the
+  // rotation of the correction (a look-alike on another wall asks for a large turn).
+  const double angle = Eigen::AngleAxisd(T_w_new.linear().transpose() * S_w_corrected.R).angle();
+  const double shift = (S_w_corrected.t - T_w_new.translation()).norm() +
+                       angle * keyframe_median_depth(kf, T_w_new.inverse());
   // Path from the old keyframe to the new one through the live keyframes between them.
   const std::uint64_t s0 = map_.keyframe_serial(cand);
   const std::uint64_t s1 = map_.keyframe_serial(kf);
@@ -372,6 +435,106 @@ double LoopCloser::implied_drift(map::KeyframeId kf, map::KeyframeId cand,
     path += (centres[i].second - centres[i - 1].second).norm();
   }
   return path > 0.0 ? shift / path : std::numeric_limits<double>::infinity();
+}
+
+void LoopCloser::append_points(map::KeyframeId kf, std::vector<map::PointId>& out) const {
+  const std::uint32_t n = map_.keyframe_num_keypoints(kf);
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const map::PointId p = map_.keyframe_point(kf, i);
+    if (p != map::kNoId && !map_.point_is_bad(p)) out.push_back(p);
+  }
+}
+
+double LoopCloser::keyframe_median_depth(map::KeyframeId kf, const SE3d& T_c_w) const {
+  std::vector<double> z;
+  const std::uint32_t n = map_.keyframe_num_keypoints(kf);
+  z.reserve(n);
+  map::PointView pv;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    const map::PointId p = map_.keyframe_point(kf, i);
+    if (p == map::kNoId || !map_.read_point(p, pv)) continue;
+    const double d = (T_c_w * pv.p_w).z();
+    if (d > 0.0) z.push_back(d);
+  }
+  return upper_median(z);
+}
+
+double LoopCloser::found_share(map::KeyframeId view, const Sim3d& S_view_w,
+                               const std::vector<map::PointId>& pts, const geometry::Pinhole& K,
+                               int& in_view) const {
+  const auto kps = map_.keyframe_keypoints(view);
+  const auto descs = map_.keyframe_descriptors(view);
+  const std::size_t n = std::min(kps.size(), descs.size());
+  in_view = 0;
+  int found = 0;
+  map::PointView pv;
+  for (const map::PointId q : pts) {
+    if (!map_.read_point(q, pv)) continue;
+    const Eigen::Vector3d x = S_view_w * pv.p_w;
+    if (x.z() <= 0.0) continue;
+    const Eigen::Vector2d uv = K.project(x);
+    // In view: inside the image, taken as twice the principal point (the intrinsics carry no
+    // image size).
+    if (uv.x() < 0.0 || uv.y() < 0.0 || uv.x() >= 2.0 * K.cx || uv.y() >= 2.0 * K.cy) continue;
+    ++in_view;
+    for (std::size_t k = 0; k < n; ++k) {
+      const features::Keypoint& kp = kps[k];
+      const double e2 = (Eigen::Vector2d(kp.x, kp.y) - uv).squaredNorm();
+      if (e2 <= opts_.fuse_radius_px * opts_.fuse_radius_px * sigma2(kp) &&
+          features::hamming(pv.descriptor, descs[k]) <= opts_.max_descriptor_distance) {
+        ++found;
+        break;
+      }
+    }
+  }
+  return in_view > 0 ? static_cast<double>(found) / in_view : 0.0;
+}
+
+void LoopCloser::found_both_ways(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
+                                 const geometry::Pinhole& K, double& found_new,
+                                 double& found_old) const {
+  found_new = 0.0;
+  found_old = 0.0;
+  SE3d T_w_new;
+  SE3d T_w_cand;
+  if (!map_.keyframe_pose(kf, T_w_new) || !map_.keyframe_pose(cand, T_w_cand)) return;
+  // Points of a keyframe (each once), the new keyframe's own ones excluded from the old side.
+  std::vector<map::PointId> old_pts;
+  for (const OldView& v : old_views_) append_points(v.kf, old_pts);
+  std::sort(old_pts.begin(), old_pts.end());
+  old_pts.erase(std::unique(old_pts.begin(), old_pts.end()), old_pts.end());
+  std::vector<map::PointId> new_pts;
+  append_points(kf, new_pts);
+  // Old points into the new camera: S_new_cand * T_cand_w; new points into the old camera:
+  // S_cand_new * T_new_w.
+  const Sim3d S_new_w = S_cand_new.inverse() * Sim3d::from_se3(T_w_cand.inverse());
+  const Sim3d S_cand_w = S_cand_new * Sim3d::from_se3(T_w_new.inverse());
+  int n_new_view = 0;
+  int n_old_view = 0;
+  found_new = found_share(kf, S_new_w, old_pts, K, n_new_view);
+  found_old = found_share(cand, S_cand_w, new_pts, K, n_old_view);
+}
+
+double LoopCloser::usual_found_share(map::KeyframeId kf, const geometry::Pinhole& K) const {
+  // The new keyframe's most covisible older keyframe of its segment: the same place seen a
+  // moment before, through the map's own relative pose.
+  std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
+  const std::size_t nc = map_.covisible_keyframes(kf, covis);
+  const std::uint64_t serial = map_.keyframe_serial(kf);
+  const std::uint16_t segment = map_.keyframe_segment(kf);
+  for (std::size_t k = 0; k < nc; ++k) {
+    const map::KeyframeId nb = covis[k].id;
+    SE3d T_w_nb;
+    if (map_.keyframe_segment(nb) != segment || map_.keyframe_serial(nb) >= serial ||
+        !map_.keyframe_pose(nb, T_w_nb)) {
+      continue;
+    }
+    std::vector<map::PointId> pts;
+    append_points(kf, pts);
+    int in_view = 0;
+    return found_share(nb, Sim3d::from_se3(T_w_nb.inverse()), pts, K, in_view);
+  }
+  return 0.0;  // no older neighbour: nothing to compare with (the check passes)
 }
 
 int LoopCloser::match_points(map::KeyframeId kf, map::KeyframeId cand) {
@@ -867,7 +1030,7 @@ int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S
   for (const int w : window) map_.update_covisibility(nodes[static_cast<std::size_t>(w)].id);
   map_.update_covisibility(cand);
   const Sim3d& D_new = D[static_cast<std::size_t>(i_new)];
-  map_.publish_correction(D_new);
+  map_.publish_correction(map_.keyframe_segment(cand), D_new);
   rep.scale = D_new.s;
   rep.shift = (nodes[static_cast<std::size_t>(i_new)].value().t -
                nodes[static_cast<std::size_t>(i_new)].sim_old.t)

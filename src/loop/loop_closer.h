@@ -75,6 +75,9 @@ struct LoopOptions {
   int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
   int consistent_checks = 1;         ///< consecutive keyframes that must find the same place
   double max_drift_fraction = 0.2;   ///< a loop implying more drift per path length is refused
+  bool exclude_connected = false;    ///< keyframes sharing points with the new one: no candidate
+  double min_time_gap_s = 3.0;       ///< candidates were made at least this long before
+  double min_found_fraction = 0.3;   ///< share found both ways, x the usual one (0: off)
   int seed = 1;                      ///< RANSAC sampling seed
 
   template <class V>
@@ -132,9 +135,26 @@ struct LoopOptions {
             "pre-empts it)",
             options::Range<int>{0, 10000});
     v.field("max_drift_fraction", max_drift_fraction,
-            "a loop that would move the new keyframe by more than this fraction of the path "
-            "travelled since the old keyframe is refused (a similar place elsewhere)",
+            "a loop whose correction would move what the new keyframe sees by more than this "
+            "fraction of the path travelled since the old keyframe is refused (a similar place "
+            "elsewhere); the move is the camera centre's shift plus the correction's rotation "
+            "angle times the keyframe's median scene depth",
             options::Range<double>{0.0, 1e6});
+    v.field("exclude_connected", exclude_connected,
+            "keyframes that share map-points with the new one (joined to it through the "
+            "covisibility graph already) are never loop candidates");
+    v.field("min_time_gap_s", min_time_gap_s,
+            "loop candidates were made at least this long before the new keyframe",
+            options::Range<double>{0.0, 1e6});
+    v.field("min_found_fraction", min_found_fraction,
+            "a loop's similarity must be confirmed both ways: of the old window's map-points "
+            "that it projects into the new keyframe's image, and of the new keyframe's that it "
+            "projects into the old one's, the share that finds a keypoint with a matching "
+            "descriptor (fuse_radius_px, max_descriptor_distance) must be at least this "
+            "fraction of the usual share, that of the new keyframe's points in its own most "
+            "covisible older keyframe; a look-alike place matches its copy but not the "
+            "surroundings (0: not checked)",
+            options::Range<double>{0.0, 1.0});
     v.field("consistent_checks", consistent_checks,
             "keyframes in a row (at most 3 apart) whose geometric check must find the same old "
             "place (the candidate or a keyframe covisible with it) before the loop is corrected",
@@ -151,11 +171,18 @@ struct LoopReport {
   int candidates = 0;     ///< candidates checked geometrically
   int pending = 0;        ///< a check passed, waiting for the next keyframes to agree
   int refused_drift = 0;  ///< checks passed but refused by max_drift_fraction
+  int refused_found = 0;  ///< checks passed but refused by min_found_fraction
   bool closed = false;    ///< a loop was found and corrected
   map::KeyframeId loop_keyframe = map::kNoId;  ///< the old keyframe it closed on
   std::uint64_t loop_seq = 0;                  ///< its frame
+  std::int64_t loop_t_ns = 0;                  ///< its timestamp
   int matches = 0;             ///< point matches with the loop keyframe (best candidate)
   int inliers = 0;             ///< of those, explained by the similarity
+  double found_new = 0.0;      ///< share of the old window's points in the new view found
+  double found_old = 0.0;      ///< share of the new keyframe's points in the old view found
+  bool connected = false;      ///< the old keyframe shared points with the new one
+  double drift = 0.0;          ///< the correction over the path (max_drift_fraction)
+  double found_usual = 0.0;    ///< the new keyframe's share with its own older neighbour
   geometry::Sim3d similarity;  ///< the loop's similarity: new keyframe's camera -> old one's
   double scale = 1.0;          ///< scale of the correction at the new keyframe
   double shift = 0.0;          ///< translation of the new keyframe by the correction, map units
@@ -166,6 +193,35 @@ struct LoopReport {
   double full_ba_ms = 0.0;
 };
 
+/// A closed loop, for ground-truth audits: the two keyframes and the similarity the loop
+/// found between them (before the correction spread it).
+struct LoopClosureEvent {
+  std::uint64_t seq = 0;        ///< frame of the new keyframe
+  std::int64_t t_ns = 0;        ///< its timestamp
+  std::uint64_t loop_seq = 0;   ///< frame of the old keyframe
+  std::int64_t loop_t_ns = 0;   ///< its timestamp
+  std::uint16_t segment = 0;    ///< the segment both belong to
+  int inliers = 0;              ///< matches the similarity explains
+  double found_new = 0.0;       ///< LoopReport::found_new
+  double found_old = 0.0;       ///< LoopReport::found_old
+  double found_usual = 0.0;     ///< LoopReport::found_usual
+  double drift = 0.0;           ///< the correction over the path (max_drift_fraction)
+  bool connected = false;       ///< LoopReport::connected
+  geometry::Sim3d sim_old_new;  ///< new keyframe's camera -> old one's, old map units
+};
+
+/// Loop hypotheses refused, by reason (summary.json `loop.rejected`).
+struct LoopRejections {
+  std::uint64_t few_matches = 0;   ///< a candidate with fewer than min_matches point matches
+  std::uint64_t few_inliers = 0;   ///< no similarity explained min_inliers of them
+  std::uint64_t drift = 0;         ///< the correction was implausible (max_drift_fraction)
+  std::uint64_t not_found = 0;     ///< not confirmed both ways (min_found_fraction)
+  std::uint64_t inconsistent = 0;  ///< seen once, not again by the next keyframes
+};
+
+/// Closed loops kept per run, at most (later ones are only counted).
+inline constexpr std::size_t kMaxLoopEvents = 1024;
+
 /// Totals over a run (summary.json `loop`).
 struct LoopTotals {
   std::uint64_t keyframes_checked = 0;   ///< spins that looked for a loop
@@ -174,7 +230,11 @@ struct LoopTotals {
   std::uint64_t merged_points = 0;
   double max_ms = 0.0;  ///< longest spin, full BA excluded
   double max_full_ba_ms = 0.0;
-  LoopReport last_loop;  ///< the last loop closed
+  LoopReport last_loop;                    ///< the last loop closed
+  std::vector<LoopClosureEvent> closures;  ///< every loop closed (at most kMaxLoopEvents)
+  LoopRejections rejected;                 ///< refusals by reason
+  std::uint64_t excluded_connected = 0;    ///< candidates skipped: they share points (counted
+                                           ///< per keyframe checked)
 };
 
 /// Loop-closure stage: `spin_once(new keyframe) -> LoopReport`.
@@ -215,9 +275,30 @@ class LoopCloser {
   std::vector<std::uint8_t> best_inlier_;
   std::vector<OldView> best_old_views_;
   int match_points(map::KeyframeId kf, map::KeyframeId cand);
-  /// Shift of the new keyframe by the loop, over the path travelled since the candidate.
+  /// How far the loop's correction moves what the new keyframe sees (the centre's shift plus
+  /// the rotation angle times the median scene depth), over the path travelled since the
+  /// candidate.
   double implied_drift(map::KeyframeId kf, map::KeyframeId cand,
                        const geometry::Sim3d& S_cand_new) const;
+  /// Guided check of S_cand_new both ways: the old views' points projected into the new
+  /// keyframe (found_new) and the new keyframe's points projected into the candidate
+  /// (found_old); each is the share of the points in view that find a keypoint within
+  /// fuse_radius_px sigmas with a descriptor within max_descriptor_distance.
+  void found_both_ways(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+                       const geometry::Pinhole& K, double& found_new, double& found_old) const;
+  /// Appends kf's live, not-bad map points (one per associated keypoint) to `out`.
+  void append_points(map::KeyframeId kf, std::vector<map::PointId>& out) const;
+  /// Median depth of kf's map points in the camera T_c_w (0 without any).
+  double keyframe_median_depth(map::KeyframeId kf, const SE3d& T_c_w) const;
+  /// The share (as found_share) of the new keyframe's points found in its most covisible
+  /// older keyframe of the same segment, placed by the map's poses: what the same place looks
+  /// like in this scene. 0 without such a keyframe.
+  double usual_found_share(map::KeyframeId kf, const geometry::Pinhole& K) const;
+  /// Of the map points `pts` (world, camera frame T_c_w), the share in view of keyframe `view`
+  /// that find a keypoint there (as found_both_ways); `in_view` gets how many were in view.
+  double found_share(map::KeyframeId view, const geometry::Sim3d& S_view_w,
+                     const std::vector<map::PointId>& pts, const geometry::Pinhole& K,
+                     int& in_view) const;
   int ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
                   geometry::Sim3d& S_cand_new);
   /// Camera-frame positions of the matches' points (x_new_, x_old_); drops the matches whose

@@ -28,8 +28,8 @@ double elapsed_ms(std::chrono::steady_clock::time_point t0) {
 }  // namespace
 
 Relocalizer::Relocalizer(const RelocalizerOptions& opts, map::Map& map, KeyframeDatabase& db,
-                         int map_reader)
-    : opts_(opts), map_(map), db_(db), reader_(map_reader) {
+                         int map_reader, bool deterministic)
+    : opts_(opts), map_(map), db_(db), reader_(map_reader), deterministic_(deterministic) {
   const map::MapOptions& mo = map.options();
   const auto nkp = static_cast<std::size_t>(std::max(1, opts_.max_keypoints));
   const std::size_t max_kfs =
@@ -74,7 +74,7 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
   build_grid(frame, n_kp);
 
   for (std::size_t h = 0; h < nh; ++h) {
-    if (h > 0 && elapsed_ms(t0) > opts_.max_time_ms) {
+    if (!deterministic_ && h > 0 && elapsed_ms(t0) > opts_.max_time_ms) {
       r.timed_out = true;
       break;
     }

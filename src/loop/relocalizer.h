@@ -25,7 +25,8 @@
 /// Real time: every buffer is sized in the constructor from the options and the map's
 /// capacities; spin_once() does not allocate, lock or block. Its work is bounded by
 /// max_candidates x (match + RANSAC + projection) and it stops starting candidates once
-/// max_time_ms has passed (a started candidate finishes: its cost is bounded by the options).
+/// max_time_ms has passed (a started candidate finishes: its cost is bounded by the options;
+/// in lockstep the budget is not applied, so replays do not depend on the machine's load).
 ///
 /// Threading contract: the relocalizer reads the map only through the lock-free reader group
 /// (descriptors, keypoint -> point associations, read_point, covisible_keyframes), never
@@ -110,7 +111,8 @@ struct RelocalizerOptions {
             "frame keypoints used, at most (the first ones; sizes the scratch buffers)",
             options::Range<int>{16, 100000});
     v.field("max_time_ms", max_time_ms,
-            "time after which no further candidate is started (a started one finishes)",
+            "time after which no further candidate is started (a started one finishes; not "
+            "applied in lockstep: results stay deterministic)",
             options::Range<double>{0.0, 60000.0});
     v.section("pnp", pnp, "P3P-RANSAC on the descriptor matches");
   }
@@ -145,9 +147,11 @@ class Relocalizer {
  public:
   /// `db` indexes `map`'s keyframes and must outlive the relocalizer. `map_reader`: the
   /// handle of a registered map reader (announced at each spin_once), or -1 (lockstep, tests).
+  /// `deterministic` (lockstep replay) drops the `max_time_ms` budget: every retrieved
+  /// candidate is checked, so the result does not depend on the machine's load.
   /// Preallocates every buffer (options.max_keypoints, map capacities).
   Relocalizer(const RelocalizerOptions& opts, map::Map& map, KeyframeDatabase& db,
-              int map_reader = -1);
+              int map_reader = -1, bool deterministic = false);
   ~Relocalizer();
   Relocalizer(const Relocalizer&) = delete;
   Relocalizer& operator=(const Relocalizer&) = delete;
@@ -175,6 +179,7 @@ class Relocalizer {
   map::Map& map_;
   KeyframeDatabase& db_;
   int reader_;
+  bool deterministic_;  ///< lockstep: no wall-time budget
   std::unique_ptr<geometry::PnpRansac> pnp_;
   std::vector<RetrievalHit> hits_;
   std::vector<map::CovisibleKeyframe> covis_;

@@ -161,18 +161,18 @@ void Map::write_pose(KeyframeId kf, const SE3d& T_w_c, double scale) noexcept {
   s.pose_lock.write_end();
 }
 
-void Map::publish_correction(const geometry::Sim3d& S_new_old) noexcept {
-  correction_own_ = S_new_old * correction_own_;
+void Map::publish_correction(std::uint16_t segment, const geometry::Sim3d& S_new_old) noexcept {
+  if (segment >= kMaxSegments) return;
+  geometry::Sim3d& own = correction_own_[segment];
+  own = S_new_old * own;
+  std::atomic<std::uint64_t>* w = &correction_[std::size_t{segment} * kCorrectionWords];
+  const std::uint64_t seg_count = load_payload(w[kPoseWords]) + 1U;
   const std::uint32_t count = correction_count_.load(std::memory_order_relaxed) + 1U;
   correction_lock_.write_begin();
-  for (int i = 0; i < 9; ++i) {
-    store_payload(correction_[kPoseRotation + i], pack_double(correction_own_.R(i % 3, i / 3)));
-  }
-  for (int i = 0; i < 3; ++i) {
-    store_payload(correction_[kPoseTranslation + i], pack_double(correction_own_.t[i]));
-  }
-  store_payload(correction_[kPoseScale], pack_double(correction_own_.s));
-  store_payload(correction_[kPoseWords], std::uint64_t{count});
+  for (int i = 0; i < 9; ++i) store_payload(w[kPoseRotation + i], pack_double(own.R(i % 3, i / 3)));
+  for (int i = 0; i < 3; ++i) store_payload(w[kPoseTranslation + i], pack_double(own.t[i]));
+  store_payload(w[kPoseScale], pack_double(own.s));
+  store_payload(w[kPoseWords], seg_count);
   correction_lock_.write_end();
   correction_count_.store(count, std::memory_order_release);
 }
@@ -181,18 +181,20 @@ std::uint32_t Map::correction_count() const noexcept {
   return correction_count_.load(std::memory_order_acquire);
 }
 
-bool Map::read_correction(geometry::Sim3d& S, std::uint32_t& count) const noexcept {
+bool Map::read_correction(std::uint16_t segment, geometry::Sim3d& S,
+                          std::uint32_t& count) const noexcept {
+  S = geometry::Sim3d{};
+  count = 0;
+  if (segment >= kMaxSegments) return true;
+  const std::atomic<std::uint64_t>* src = &correction_[std::size_t{segment} * kCorrectionWords];
   std::uint64_t w[kCorrectionWords];
   if (!correction_lock_.read([&] {
-        for (int i = 0; i < kCorrectionWords; ++i) w[i] = load_payload(correction_[i]);
+        for (int i = 0; i < kCorrectionWords; ++i) w[i] = load_payload(src[i]);
       })) {
     return false;
   }
   count = static_cast<std::uint32_t>(w[kPoseWords]);
-  if (count == 0U) {
-    S = geometry::Sim3d{};
-    return true;
-  }
+  if (count == 0U) return true;
   for (int i = 0; i < 9; ++i) S.R(i % 3, i / 3) = unpack_double(w[kPoseRotation + i]);
   for (int i = 0; i < 3; ++i) S.t[i] = unpack_double(w[kPoseTranslation + i]);
   S.s = unpack_double(w[kPoseScale]);

@@ -243,10 +243,12 @@ class Map {
   /// of every keypoint that observed it (a later association starts as a detection). False
   /// for an unknown keyframe or keypoint.
   bool set_keypoint_anchored(KeyframeId kf, std::uint32_t kp, bool anchored);
-  /// Records a world-frame correction (a loop closure moved the map by S_new_old around the
-  /// newest keyframes): the cumulative correction becomes S_new_old * previous. Readers that
-  /// keep poses of their own (the tracker's last pose) move them by the part they missed.
-  void publish_correction(const geometry::Sim3d& S_new_old) noexcept;
+  /// Records a world-frame correction of one segment (a loop closure moved that segment's
+  /// map by S_new_old around its newest keyframes): the segment's cumulative correction
+  /// becomes S_new_old * previous. Readers that keep poses of their own in that segment (the
+  /// tracker's last pose) move them by the part they missed. Ignored for a segment id of
+  /// kMaxSegments or more.
+  void publish_correction(std::uint16_t segment, const geometry::Sim3d& S_new_old) noexcept;
   /// Sets the depth / confidence of one keypoint (depth refinement after publication).
   void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
   /// Frees a point: not live (generation incremented), removed from its cell, its keypoint
@@ -319,10 +321,13 @@ class Map {
   Generation keyframe_generation(KeyframeId kf) const noexcept;
   /// Generation of a live point, kNoGeneration otherwise.
   Generation point_generation(PointId p) const noexcept;
-  /// Corrections published so far (acquire; any thread).
+  /// Corrections published so far, of all segments (acquire; any thread).
   std::uint32_t correction_count() const noexcept;
-  /// The cumulative correction and the count it includes; false after failed retries.
-  bool read_correction(geometry::Sim3d& S, std::uint32_t& count) const noexcept;
+  /// The cumulative correction of one segment and the number of that segment's corrections it
+  /// includes (identity and 0 for a segment never corrected or out of range); false after
+  /// failed retries.
+  bool read_correction(std::uint16_t segment, geometry::Sim3d& S,
+                       std::uint32_t& count) const noexcept;
   /// Consistent pose (and scale); false for an unknown id or after failed retries.
   bool keyframe_pose(KeyframeId kf, SE3d& T_w_c, double* scale = nullptr) const noexcept;
   /// Keypoints of kf (valid until the caller's next quiescent point; empty for an unknown
@@ -526,10 +531,14 @@ class Map {
   RetireQueue pt_retired_;
   std::uint64_t kf_serial_next_ = 0;
   SeqLock correction_lock_;
-  std::atomic<std::uint64_t> correction_[kCorrectionWords] = {};
-  std::atomic<std::uint32_t> correction_count_{0};
-  geometry::Sim3d correction_own_;  // writer side copy of the cumulative correction
-  std::uint64_t epoch_own_ = 0;     // writer's copy of epoch_
+  // kMaxSegments x kCorrectionWords: each segment's cumulative correction and its count.
+  std::unique_ptr<std::atomic<std::uint64_t>[]> correction_ =
+      std::make_unique<std::atomic<std::uint64_t>[]>(std::size_t{kMaxSegments} * kCorrectionWords);
+  std::atomic<std::uint32_t> correction_count_{0};  // all segments
+  // Writer side copies of each segment's cumulative correction.
+  std::unique_ptr<geometry::Sim3d[]> correction_own_ =
+      std::make_unique<geometry::Sim3d[]>(kMaxSegments);
+  std::uint64_t epoch_own_ = 0;  // writer's copy of epoch_
   std::uint64_t removed_keyframes_ = 0;
   std::uint64_t bad_points_ = 0;
   std::uint64_t merged_points_ = 0;

@@ -21,5 +21,7 @@ inline constexpr std::uint32_t kNoId = 0xFFFFFFFFu;
 inline constexpr Generation kNoGeneration = 0xFFFFFFFFu;
 /// Map segment reported for an unknown keyframe (never a live keyframe's).
 inline constexpr std::uint16_t kNoSegment = 0xFFFFu;
+/// Map segments one map holds (segment ids 0 .. kMaxSegments - 1).
+inline constexpr std::uint16_t kMaxSegments = 256;
 
 }  // namespace mer::map

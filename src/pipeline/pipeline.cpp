@@ -155,11 +155,13 @@ Status Pipeline::init(const std::string& output_dir) {
       reloc_db_ = std::make_unique<loop::KeyframeDatabase>(*map_);
       db = reloc_db_.get();
     }
-    relocalizer_ = std::make_unique<loop::Relocalizer>(config_.relocalization, *map_, *db, reader);
+    relocalizer_ = std::make_unique<loop::Relocalizer>(config_.relocalization, *map_, *db, reader,
+                                                       config_.pipeline.lockstep);
     tracker_->reserve_relocalization_request(reloc_request_);
     tracker_->enable_relocalization(true);
   }
   stats_.relocalization.enabled = relocalizer_ != nullptr;
+  stats_.relocalization.events.reserve(kMaxRelocalizationEvents);
   segment_stats_.assign(static_cast<std::size_t>(config_.tracking.max_segments), SegmentStats{});
   jobs_.resize(kKeyframeJobs);
   const bool dense = builder_->backend_name() == "plane_sweep";
@@ -413,6 +415,15 @@ void Pipeline::count_result(const frontend::TrackingResult& r) {
     g.last_seq = r.seq;
   }
   if (r.steady) ++stats_.steady_frames;
+  if (r.relocalized && r.reloc_keyframe_t_ns != 0) {
+    std::vector<RelocalizationEvent>& ev = stats_.relocalization.events;
+    if (ev.size() < ev.capacity()) {
+      ev.push_back(RelocalizationEvent{r.seq, r.t_ns, r.reloc_keyframe_t_ns, r.segment, r.T_rkf_c,
+                                       r.reloc_confirmed, r.reloc_found_ratio});
+    } else {
+      ++stats_.relocalization.events_dropped;
+    }
+  }
   for (std::size_t i = 0; i < lat_steps_.size(); ++i) {
     if (r.steady) lat_steps_[i]->record(r.seq, r.t_ns, r.step_ns[i]);
   }

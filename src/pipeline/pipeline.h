@@ -132,6 +132,21 @@ struct SegmentStats {
 };
 
 /// What relocalization did over a run (summary.json `relocalization`).
+/// An accepted relocalization: the frame, the keyframe it was matched to and its pose
+/// relative to that keyframe as the map held it then (for ground-truth audits).
+struct RelocalizationEvent {
+  std::uint64_t seq = 0;           ///< the frame tracking resumed on
+  std::int64_t t_ns = 0;           ///< its timestamp
+  std::int64_t keyframe_t_ns = 0;  ///< the keyframe the relocalizer matched
+  std::uint16_t segment = 0;       ///< the segment tracking resumed in
+  SE3d T_kf_c = SE3d::Identity();  ///< frame pose relative to that keyframe, map units
+  bool confirmed = false;          ///< confirmed on following frames, not trusted at once
+  float found_ratio = 0.0F;        ///< confirmed: lowest found share / usual meanwhile
+};
+
+/// Accepted relocalizations kept per run, at most (later ones are only counted).
+inline constexpr std::size_t kMaxRelocalizationEvents = 1024;
+
 struct RelocalizationStats {
   bool enabled = false;
   std::uint64_t attempts = 0;          ///< lost frames the relocalizer ran on
@@ -142,6 +157,8 @@ struct RelocalizationStats {
   double max_ms = 0.0;                 ///< longest attempt
   double sum_ms = 0.0;                 ///< all attempts (mean = sum / attempts)
   std::int64_t last_success_seq = -1;  ///< frame of the last success
+  std::vector<RelocalizationEvent> events;  ///< accepted ones (reserved: no allocation)
+  std::uint64_t events_dropped = 0;         ///< accepted beyond kMaxRelocalizationEvents
 };
 
 /// Counters and summaries of one run.

@@ -97,5 +97,60 @@ TEST(FrameAnchors, FuzzedFilesAreParsedOrRefused) {
   }
 }
 
+TEST(EventAudit, ScoresRelocalizationsAndLoopsAgainstTheTruthInMetres) {
+  const auto dir = std::filesystem::temp_directory_path() / "mer_event_audit_test";
+  std::filesystem::create_directories(dir);
+  // Truth: at the origin (t = 1 s), 1 m along x (t = 2 s), back at the origin turned 90 deg
+  // about z (t = 3 s).
+  std::ofstream(dir / "groundtruth.txt") << "1.0 0 0 0 0 0 0 1\n"
+                                            "2.0 1 0 0 0 0 0 1\n"
+                                            "3.0 0 0 0 0 0 0.7071067811865476 0.7071067811865476\n";
+  pipeline::PipelineStats st;
+  st.segments.resize(2);
+  st.segments[0].id = 0;
+  st.segments[1].id = 1;
+  std::vector<AccuracyReport> seg(2);
+  seg[0].available = true;
+  seg[0].scale = 2.0;  // one map unit is 2 m
+  // seg[1] has no alignment: its events cannot be scored.
+  const SE3d half_x = make_se3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0.5, 0.0, 0.0));
+  st.relocalization.events.push_back({10, 2'000'000'000, 1'000'000'000, 0, half_x});  // right
+  st.relocalization.events.push_back({20, 3'000'000'000, 1'000'000'000, 0, half_x});  // wrong
+  st.relocalization.events.push_back({30, 2'000'000'000, 1'000'000'000, 1, half_x});  // no scale
+  loop::LoopClosureEvent l;
+  l.seq = 40;
+  l.t_ns = 3'000'000'000;
+  l.loop_t_ns = 2'000'000'000;
+  l.segment = 0;
+  // The truth of the t = 3 s camera in the t = 2 s one: 1 m along -x, turned 90 deg. The loop
+  // claims it 0.25 map units (0.5 m) along -x, not turned: 0.5 m and 90 deg off.
+  l.sim_old_new.t = Eigen::Vector3d(-0.25, 0.0, 0.0);
+  st.loop.closures.push_back(l);
+
+  const EventAuditReport r = audit_events(dir.string(), st, seg);
+  ASSERT_TRUE(r.available) << r.note;
+  ASSERT_EQ(r.events.size(), 4U);
+  EXPECT_EQ(r.relocalizations, 2);
+  EXPECT_EQ(r.relocalizations_wrong, 1);
+  EXPECT_EQ(r.loops, 1);
+  EXPECT_EQ(r.loops_wrong, 0);  // 0.5 m is not more than kWrongLoopM
+  EXPECT_TRUE(r.events[0].scored);
+  EXPECT_NEAR(r.events[0].error_m, 0.0, 1e-9);
+  EXPECT_NEAR(r.events[0].gt_distance_m, 1.0, 1e-9);
+  EXPECT_FALSE(r.events[0].wrong);
+  EXPECT_NEAR(r.events[1].error_m, 1.0, 1e-9);
+  EXPECT_NEAR(r.events[1].error_deg, 90.0, 1e-6);
+  EXPECT_TRUE(r.events[1].wrong);
+  EXPECT_FALSE(r.events[2].scored);
+  EXPECT_EQ(r.events[3].kind, "loop");
+  EXPECT_NEAR(r.events[3].error_m, 0.5, 1e-9);
+  EXPECT_NEAR(r.events[3].error_deg, 90.0, 1e-6);
+  EXPECT_NEAR(r.events[3].gt_distance_m, 1.0, 1e-9);
+
+  std::filesystem::remove(dir / "groundtruth.txt");
+  EXPECT_FALSE(audit_events(dir.string(), st, seg).available);
+  std::filesystem::remove_all(dir);
+}
+
 }  // namespace
 }  // namespace mer::app

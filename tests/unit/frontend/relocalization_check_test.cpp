@@ -3,124 +3,19 @@
 // as the relocalizer would. After a short loss a pose within the motion bound is trusted at
 // once and one outside it is refused when the frames do not confirm it; after a long loss even
 // the right pose is confirmed on the following frames before a frame is reported tracked.
-#include <cstdio>
-#include <memory>
 #include <numbers>
 
 #include <gtest/gtest.h>
 
-#include "backend/local_ba.h"
-#include "depth/keyframe_builder.h"
-#include "frontend/tracker.h"
-#include "hal/synthetic/synthetic_camera.h"
+#include "reloc_rig.h"
 
 namespace mer::frontend {
 namespace {
 
-constexpr double kFps = 30.0;
-constexpr int kTrackedFrames = 90;  // tracked before the loss
-
-/// Tracker, keyframe builder and local BA in lockstep on room_orbit (RGB-D: the map's world
-/// frame is the first camera's, in metres).
-class RelocRig {
- public:
-  explicit RelocRig(const TrackingOptions& topts) {
-    cam_opts_.num_frames = 100000;
-    cam_ = std::make_unique<hal::SyntheticCamera>("room_orbit", cam_opts_, false);
-    EXPECT_TRUE(cam_->open(8).is_ok());
-    frame_.gray.create(cam_opts_.height, cam_opts_.width, CV_8UC1);
-    frame_.depth.create(cam_opts_.height, cam_opts_.width, CV_32FC1);
-    map::MapOptions mopts;
-    mopts.max_keyframes = 200;
-    mopts.max_points = 60000;
-    map_ = std::make_unique<map::Map>(mopts);
-    const auto& k = cam_->intrinsics();
-    tracker_ = std::make_unique<Tracker>(topts, *map_, geometry::Pinhole{k.fx, k.fy, k.cx, k.cy},
-                                         cam_opts_.width, cam_opts_.height, "rgbd", false);
-    EXPECT_TRUE(tracker_->init().is_ok());
-    tracker_->enable_relocalization(true);
-    const backend::LocalBaOptions ba_opts;
-    builder_ = std::make_unique<depth::KeyframeBuilder>(
-        depth::DepthOptions{}, "rgbd", *map_, tracker_->level_sigma2(), ba_opts.depth_sigma_rel);
-    EXPECT_TRUE(builder_->init().is_ok());
-    ba_ = std::make_unique<backend::LocalBundleAdjuster>(ba_opts, *map_, tracker_->level_sigma2(),
-                                                         true, builder_->metric_map_depth());
-    job_.reserve(tracker_->max_keypoints(), cam_opts_.width, cam_opts_.height);
-  }
-
-  /// The true camera-to-world pose of frame i (ground-truth world).
-  SE3d truth(int i) const { return cam_->sample_at(i / kFps).T_w_c; }
-  /// Frame i's true pose in the map's world frame (the first frame's camera).
-  SE3d truth_in_map(int i) const { return T_map_gt_ * truth(i); }
-
-  /// Renders and tracks frame i (black when `black`), building keyframes as the pipeline does.
-  TrackingResult step(int i, bool black = false) {
-    frame_.seq = static_cast<std::uint64_t>(i);
-    frame_.t_ns = static_cast<std::int64_t>(static_cast<double>(i) / kFps * 1e9);
-    frame_.has_ground_truth = true;
-    frame_.T_w_c_gt = truth(i);
-    cam_->render(frame_.T_w_c_gt, frame_.gray, &frame_.depth, static_cast<std::uint64_t>(i));
-    if (black) {
-      frame_.gray.setTo(0);
-      frame_.depth.setTo(0.0F);
-    }
-    const TrackingResult r = tracker_->spin_once(frame_);
-    if (i == 0 && r.state == TrackState::kTracked) T_map_gt_ = r.T_w_c * truth(0).inverse();
-    if (r.keyframe_job) {
-      tracker_->fill_keyframe_job(frame_, job_);
-      const depth::KeyframeBuildReport rep = builder_->spin_once(job_);
-      if (rep.ok) (void)ba_->spin_once(rep.keyframe, job_.K);
-    }
-    return r;
-  }
-
-  /// Hands the tracker a relocalizer's pose for frame i (camera-to-world in the map frame),
-  /// found against the newest keyframe.
-  void hint(int i, const SE3d& T_w_c) {
-    RelocalizationHint h;
-    h.valid = true;
-    h.seq = static_cast<std::uint64_t>(i);
-    h.T_c_w = T_w_c.inverse();
-    h.keyframe = map_->newest_keyframe();
-    h.generation = map_->keyframe_generation(h.keyframe);
-    tracker_->set_relocalization_hint(h);
-  }
-
-  const TrackerCounters& counters() const { return tracker_->counters(); }
-
- private:
-  hal::SyntheticOptions cam_opts_;
-  std::unique_ptr<hal::SyntheticCamera> cam_;
-  hal::Frame frame_;
-  std::unique_ptr<map::Map> map_;
-  std::unique_ptr<Tracker> tracker_;
-  std::unique_ptr<depth::KeyframeBuilder> builder_;
-  std::unique_ptr<backend::LocalBundleAdjuster> ba_;
-  map::KeyframeJob job_;
-  SE3d T_map_gt_ = SE3d::Identity();
-};
-
-/// Tracks frames [0, kTrackedFrames), then `black` black frames; returns the next frame index.
-int track_then_lose(RelocRig& rig, int black) {
-  int tracked = 0;
-  for (int i = 0; i < kTrackedFrames; ++i) {
-    tracked += rig.step(i).state == TrackState::kTracked ? 1 : 0;
-  }
-  EXPECT_GE(tracked, kTrackedFrames - 2);
-  int i = kTrackedFrames;
-  for (; i < kTrackedFrames + black; ++i) {
-    const TrackingResult r = rig.step(i, true);
-    EXPECT_NE(r.state, TrackState::kTracked) << "black frame " << i;
-  }
-  return i;
-}
-
-TrackingOptions options(bool new_segments = false) {
-  TrackingOptions o;
-  o.relocalize_after_lost_frames = 0;
-  o.new_segments = new_segments;
-  return o;
-}
+using test::kTrackedFrames;
+using test::options;
+using test::RelocRig;
+using test::track_then_lose;
 
 // A short loss, the right pose: within the bound, tracked at once with a relocalization
 // keyframe.
@@ -187,15 +82,38 @@ TEST(RelocalizationCheck, RightPoseAfterALongLossIsConfirmedFirst) {
   EXPECT_LT((r.T_w_c.translation() - rig.truth_in_map(i).translation()).norm(), 0.05);
 }
 
+/// Frame i-1's true pose turned by `deg` about the camera's vertical axis.
+SE3d turned_truth(const RelocRig& rig, int i, double deg) {
+  SE3d T = rig.truth_in_map(i - 1);
+  T.linear() =
+      T.linear() * Eigen::AngleAxisd(deg * std::numbers::pi / 180.0, Eigen::Vector3d::UnitY())
+                       .toRotationMatrix();
+  return T;
+}
+
+// The bound follows the last tracked motion: after a 1/3 s loss the orbit's own turn is
+// trusted at once, but a pose turned 40 degrees against it is confirmed first. (A bound on
+// speed alone, 180 deg/s, allowed 70 degrees here: a look-alike on the next wall.)
+TEST(RelocalizationCheck, BoundIsCentredOnTheLastMotion) {
+  for (const bool wrong : {false, true}) {
+    RelocRig rig(options());
+    const int i = track_then_lose(rig, 10);
+    rig.hint(i - 1, wrong ? turned_truth(rig, i, 40.0) : rig.truth_in_map(i - 1));
+    (void)rig.step(i);
+    EXPECT_EQ(rig.counters().relocalization_trusted, wrong ? 0U : 1U);
+    EXPECT_EQ(rig.counters().relocalization_candidates, wrong ? 1U : 0U);
+  }
+}
+
 // With the check off, a relocalizer's pose is trusted as it comes (the behaviour the check
-// replaces): no candidate is counted.
+// replaces): the same turned pose, a candidate with the check on, is trusted at once.
 TEST(RelocalizationCheck, OffTrustsEveryPose) {
   TrackingOptions o = options();
   o.relocalization_check.enabled = false;
   RelocRig rig(o);
-  const int i = track_then_lose(rig, 3);
-  rig.hint(i - 1, rig.truth_in_map(i - 1));
-  EXPECT_EQ(rig.step(i).state, TrackState::kTracked);
+  const int i = track_then_lose(rig, 10);
+  rig.hint(i - 1, turned_truth(rig, i, 40.0));
+  (void)rig.step(i);
   EXPECT_EQ(rig.counters().relocalization_trusted, 1U);
   EXPECT_EQ(rig.counters().relocalization_candidates, 0U);
 }

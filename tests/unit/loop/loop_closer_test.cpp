@@ -44,7 +44,7 @@ TEST(LoopOptions, EveryFieldHasADocLine) {
   testing::DocCheck v;
   LoopOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 20);
+  EXPECT_EQ(v.fields, 23);
 }
 
 // An old keyframe A and, after a detour, a new keyframe B at nearly the same place, whose map
@@ -54,8 +54,9 @@ TEST(LoopOptions, EveryFieldHasADocLine) {
 // ones can.
 struct LoopScene {
   static constexpr int kPoints = 120;
-  static constexpr double kDrift = 1.04;    // scale of the new side's drift
-  static constexpr double kBaseline = 0.1;  // B's true offset from A, m
+  static constexpr double kDrift = 1.04;                 // scale of the new side's drift
+  static constexpr double kBaseline = 0.1;               // B's true offset from A, m
+  static constexpr std::uint64_t kMsPerKeyframe = 1000;  // B comes 5 s after A
   map::Map map;
   geometry::Pinhole K{400.0, 400.0, 320.0, 240.0};
   map::KeyframeId a = map::kNoId;
@@ -109,7 +110,7 @@ struct LoopScene {
       for (int i = 0; i < kPoints; ++i) other.push_back({rng(), rng(), rng(), rng()});
       const SE3d T(Eigen::Translation3d(static_cast<double>(k), 0.0, 0.0));
       (void)add_view(T, T, pts, other, static_cast<std::uint64_t>(k),
-                     static_cast<std::uint64_t>(k));
+                     static_cast<std::uint64_t>(k) * kMsPerKeyframe);
     }
     // Keyframe B: truly 10 cm right of A, but the map drifted by S (yaw 3 deg, a shift and
     // scale 1.04): its pose and its points are S times the true ones.
@@ -123,7 +124,7 @@ struct LoopScene {
     T_w_b.translation() = S * T_w_b_true.translation();
     std::vector<features::Descriptor> desc_b = desc;
     for (features::Descriptor& d : desc_b) d[0] ^= 0x11ULL;  // 2 bits: another view's noise
-    b = add_view(T_w_b_true, T_w_b, pts, desc_b, 5, 5);
+    b = add_view(T_w_b_true, T_w_b, pts, desc_b, 5, 5 * kMsPerKeyframe);
     for (int i = 0; i < kPoints; ++i) {
       const Eigen::Vector3d& p = pts[static_cast<std::size_t>(i)];
       const Eigen::Vector3d p_b =
@@ -207,6 +208,137 @@ TEST(LoopCloser, ReprojectionRefinementRecoversTheLoopSimilarity) {
   EXPECT_LT(e1.rot_deg, 0.5 * e0.rot_deg);
   EXPECT_LT(e1.t, 0.5 * e0.t);
   EXPECT_LT(e1.scale, 0.5 * e0.scale + 1e-3);
+}
+
+// The same loop made 5 ms after the old keyframe instead of 5 s: within min_time_gap_s the old
+// keyframe is no candidate at all.
+TEST(LoopCloser, KeyframesOfTheLastSecondsAreNoCandidates) {
+  LoopScene scene;
+  LoopOptions o;
+  o.min_keyframe_gap = 2;
+  o.min_time_gap_s = 6.0;  // B is 5 s after A
+  LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
+  const LoopReport r = closer.spin_once(scene.b, scene.K);
+  EXPECT_FALSE(r.closed);
+  EXPECT_EQ(r.candidates, 0);
+}
+
+// A look-alike place: keyframe B sees a copy of the poster keyframe A sees, from the same
+// relative pose and where the map expects A's place (so no drift bound can tell), but the
+// rest of each view differs. The poster alone makes a perfect similarity; projected with it,
+// A's surroundings are not found in B nor B's in A. The true loop of LoopScene is found both
+// ways.
+struct LookAlikeScene {
+  static constexpr int kPoster = 60;
+  static constexpr int kSurroundings = 90;
+  map::Map map;
+  geometry::Pinhole K{400.0, 400.0, 320.0, 240.0};
+  map::KeyframeId a = map::kNoId;
+  map::KeyframeId b = map::kNoId;
+
+  static map::MapOptions options() {
+    map::MapOptions o = LoopScene::options();
+    o.max_points = 1024;  // 6 views of 150 points (B shares B0's)
+    return o;
+  }
+
+  LookAlikeScene() : map(options()) {
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> px(-0.6, 0.6);
+    std::uniform_real_distribution<double> py(-0.4, 0.4);
+    std::uniform_real_distribution<double> ux(-1.5, 1.5);
+    std::uniform_real_distribution<double> uy(-1.0, 1.0);
+    std::uniform_real_distribution<double> uz(2.0, 4.0);
+    auto random_desc = [&] { return features::Descriptor{rng(), rng(), rng(), rng()}; };
+    std::vector<Eigen::Vector3d> poster;  // a flat poster 3 m ahead, in the camera frame
+    std::vector<features::Descriptor> poster_desc;
+    for (int i = 0; i < kPoster; ++i) {
+      poster.emplace_back(px(rng), py(rng), 3.0);
+      poster_desc.push_back(random_desc());
+    }
+    std::vector<map::PointId> last_points;  // of the last view made
+    auto view = [&](std::uint64_t seq, std::uint64_t t_ms, const SE3d& T_w_c, bool copy) {
+      std::vector<Eigen::Vector3d> pts_w;
+      std::vector<features::Descriptor> desc;
+      for (int i = 0; i < kPoster; ++i) {
+        pts_w.push_back(T_w_c * poster[static_cast<std::size_t>(i)]);
+        features::Descriptor d = poster_desc[static_cast<std::size_t>(i)];
+        if (copy) d[0] ^= 0x11ULL;  // another view's noise
+        desc.push_back(d);
+      }
+      for (int i = 0; i < kSurroundings; ++i) {  // each view's own surroundings
+        pts_w.push_back(T_w_c * Eigen::Vector3d(ux(rng), uy(rng), uz(rng)));
+        desc.push_back(random_desc());
+      }
+      const map::KeyframeId id = scene::add_view(map, K, T_w_c, T_w_c, pts_w, desc, seq, t_ms);
+      last_points.clear();
+      for (std::size_t i = 0; i < pts_w.size(); ++i) {
+        const auto p = map.add_point(pts_w[i], id, static_cast<std::uint32_t>(i));
+        EXPECT_TRUE(p.is_ok());
+        last_points.push_back(p.is_ok() ? p.value() : map::kNoId);
+      }
+      last_pts_w_ = pts_w;
+      last_desc_ = desc;
+      return id;
+    };
+    a = view(0, 0, SE3d::Identity(), false);
+    for (std::uint64_t k = 1; k <= 4; ++k) {  // a detour elsewhere
+      (void)view(k, k * 1000, SE3d(Eigen::Translation3d(0.0, 0.0, -5.0 * static_cast<double>(k))),
+                 false);
+    }
+    // B0, then B 5 cm further: the same look-alike place seen twice, B observing B0's points
+    // (the share of the same place, which the check compares with).
+    const map::KeyframeId b0 = view(5, 4900, SE3d(Eigen::Translation3d(0.05, 0.0, 0.0)), true);
+    (void)b0;
+    b = scene::add_view(map, K, SE3d(Eigen::Translation3d(0.1, 0.0, 0.0)),
+                        SE3d(Eigen::Translation3d(0.1, 0.0, 0.0)), last_pts_w_, last_desc_, 6,
+                        5000);
+    for (std::size_t i = 0; i < last_points.size(); ++i) {
+      EXPECT_TRUE(map.add_observation(last_points[i], b, static_cast<std::uint32_t>(i)));
+    }
+    map.update_covisibility(b);
+  }
+
+ private:
+  std::vector<Eigen::Vector3d> last_pts_w_;
+  std::vector<features::Descriptor> last_desc_;
+};
+
+TEST(LoopCloser, LookAlikeIsRefusedWhenNotFoundBothWays) {
+  for (const double min_found : {0.0, 0.5}) {
+    LookAlikeScene scene;
+    LoopOptions o;
+    o.min_keyframe_gap = 2;
+    o.min_found_fraction = min_found;
+    LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
+    const LoopReport r = closer.spin_once(scene.b, scene.K);
+    std::printf("look-alike, min_found_fraction %.1f: closed %d, refused %d\n", min_found,
+                r.closed ? 1 : 0, r.refused_found);
+    if (min_found == 0.0) {
+      // Unchecked, the poster closes the loop.
+      ASSERT_TRUE(r.closed);
+      EXPECT_GE(r.inliers, LookAlikeScene::kPoster - 6);
+      // About the poster's share of each view is found: 60 of 150 points; B's own place is
+      // found in full in B0.
+      EXPECT_NEAR(r.found_new, 0.4, 0.1);
+      EXPECT_NEAR(r.found_old, 0.4, 0.1);
+      EXPECT_GT(r.found_usual, 0.9);
+    } else {
+      EXPECT_FALSE(r.closed);
+      EXPECT_EQ(r.refused_found, 1);
+      EXPECT_EQ(closer.totals().rejected.not_found, 1U);
+    }
+  }
+  // The true loop passes the same check: its views are found both ways.
+  LoopScene scene;
+  LoopOptions o;
+  o.min_keyframe_gap = 2;
+  o.min_found_fraction = 0.5;
+  LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
+  const LoopReport r = closer.spin_once(scene.b, scene.K);
+  ASSERT_TRUE(r.closed);
+  EXPECT_GT(r.found_new, 0.9);
+  EXPECT_GT(r.found_old, 0.9);
 }
 
 }  // namespace

@@ -118,22 +118,38 @@ TEST(Relocalizer, SpinOnceDoesNotAllocateAfterWarmUp) {
   EXPECT_FALSE(b.success);
 }
 
-TEST(Relocalizer, StopsStartingCandidatesAfterMaxTime) {
+/// One query at heading 60 degrees with a zero time budget and every candidate failing;
+/// `deterministic` as in lockstep.
+RelocResult spin_with_no_time(bool deterministic) {
   Kidnap k;
   RelocalizerOptions o;
-  o.max_time_ms = 0.0;     // only the first candidate
+  o.max_time_ms = 0.0;     // only the first candidate, unless deterministic
   o.min_inliers = 100000;  // every candidate fails
-  Relocalizer reloc(o, k.map, k.db);
+  Relocalizer reloc(o, k.map, k.db, -1, deterministic);
   const scene::View v = k.world.observe(scene::OrbitWorld::pose(60.0), k.rng);
   RelocQuery q;
   q.keypoints = v.keypoints;
   q.descriptors = v.descriptors;
   q.K = k.world.K;
-  const RelocResult r = reloc.spin_once(q);
+  return reloc.spin_once(q);
+}
+
+TEST(Relocalizer, StopsStartingCandidatesAfterMaxTime) {
+  const RelocResult r = spin_with_no_time(false);
   EXPECT_FALSE(r.success);
   EXPECT_EQ(r.candidates_tried, 1);
   EXPECT_TRUE(r.timed_out);
   EXPECT_GT(r.retrieved, 1);
+}
+
+TEST(Relocalizer, DeterministicModeChecksEveryCandidateWhateverTheTime) {
+  // Lockstep replays must not depend on the machine's load: the same budget that stops after
+  // the first candidate above is not applied.
+  const RelocResult r = spin_with_no_time(true);
+  EXPECT_FALSE(r.success);
+  EXPECT_FALSE(r.timed_out);
+  EXPECT_GT(r.retrieved, 1);
+  EXPECT_EQ(r.candidates_tried, r.retrieved);
 }
 
 }  // namespace

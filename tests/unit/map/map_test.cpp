@@ -893,13 +893,14 @@ TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
 namespace mer::map {
 namespace {
 
-// Loop corrections compose in the map: a reader that saw the first one and reads the
-// cumulative correction after the second gets S2 * S1, with the count of both.
-TEST(Map, CorrectionsComposeAndAreCounted) {
+// Loop corrections compose in the map, per segment: a reader that saw the first one and
+// reads its segment's cumulative correction after the second gets S2 * S1, with the count of
+// both; another segment's correction changes only the total count.
+TEST(Map, CorrectionsComposePerSegmentAndAreCounted) {
   Map map(small_options());
   geometry::Sim3d S;
   std::uint32_t count = 7;
-  ASSERT_TRUE(map.read_correction(S, count));
+  ASSERT_TRUE(map.read_correction(0, S, count));
   EXPECT_EQ(count, 0U);
   EXPECT_EQ(map.correction_count(), 0U);
   EXPECT_DOUBLE_EQ(S.s, 1.0);
@@ -911,18 +912,29 @@ TEST(Map, CorrectionsComposeAndAreCounted) {
   b.R = Eigen::AngleAxisd(-0.1, Eigen::Vector3d::UnitX()).toRotationMatrix();
   b.t = Eigen::Vector3d(-0.3, 0.0, 0.2);
   b.s = 0.97;
+  geometry::Sim3d c;
+  c.t = Eigen::Vector3d(5.0, 0.0, 0.0);
+  c.s = 2.0;
   {
     std::lock_guard<platform::PiMutex> lock(map.writer_lock());
-    map.publish_correction(a);
-    map.publish_correction(b);
+    map.publish_correction(0, a);
+    map.publish_correction(3, c);
+    map.publish_correction(0, b);
+    map.publish_correction(kMaxSegments, c);  // out of range: ignored
   }
-  ASSERT_TRUE(map.read_correction(S, count));
+  EXPECT_EQ(map.correction_count(), 3U);
+  ASSERT_TRUE(map.read_correction(0, S, count));
   EXPECT_EQ(count, 2U);
-  EXPECT_EQ(map.correction_count(), 2U);
   const geometry::Sim3d ba = b * a;
   const Eigen::Vector3d p(1.0, 2.0, 3.0);
   EXPECT_LT((S * p - ba * p).norm(), 1e-12);
   EXPECT_NEAR(S.s, 1.05 * 0.97, 1e-12);
+  ASSERT_TRUE(map.read_correction(3, S, count));
+  EXPECT_EQ(count, 1U);
+  EXPECT_LT((S * p - c * p).norm(), 1e-12);
+  ASSERT_TRUE(map.read_correction(1, S, count));
+  EXPECT_EQ(count, 0U);
+  EXPECT_LT((S * p - p).norm(), 1e-12);
 }
 
 }  // namespace
