@@ -256,7 +256,7 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   const double far = opts_.query_far * median_depth_;
   const double near = kQueryNearFraction * median_depth_;
   const std::size_t ns =
-      map_.query_visible(T_c_w.inverse(), K_, width_, height_, near, far, query_buf_);
+      map_.query_visible(T_c_w.inverse(), K_, width_, height_, near, far, segment_, query_buf_);
   // Points made long ago are left to Q_T: in monocular mode they carry the drift since, and
   // tracking them would close the loop without correcting it (loop closure does that).
   const std::int64_t min_ref_t_ns =

@@ -7,11 +7,19 @@
 namespace mer::map {
 namespace {
 
-constexpr int kCoordBits = 21;  // bits per axis in a key
+constexpr int kCoordBits = 21;  // bits per axis field in a key
 constexpr std::int64_t kCoordOffset = std::int64_t{1} << (kCoordBits - 1);
-constexpr std::int64_t kCoordMin = -kCoordOffset;     // smallest cell coordinate
-constexpr std::int64_t kCoordMax = kCoordOffset - 1;  // largest cell coordinate
 constexpr std::uint64_t kCoordMask = (std::uint64_t{1} << kCoordBits) - 1;
+// A coordinate takes the low kRangeBits of its field (its offset-binary value's top
+// kCoordBits - kRangeBits bits are then 011 or 100); the segment's bits, 3 per axis, are
+// XOR-ed into those top bits.
+constexpr int kRangeBits = 18;
+constexpr int kSegmentBitsPerAxis = kCoordBits - kRangeBits;
+constexpr std::uint64_t kSegmentAxisMask = (std::uint64_t{1} << kSegmentBitsPerAxis) - 1;
+constexpr std::uint64_t kRangeMask = (std::uint64_t{1} << kRangeBits) - 1;
+constexpr std::int64_t kCoordMin = -(std::int64_t{1} << (kRangeBits - 1));  // smallest coordinate
+constexpr std::int64_t kCoordMax = (std::int64_t{1} << (kRangeBits - 1)) - 1;  // largest
+static_assert(3 * kSegmentBitsPerAxis >= 8 && kMaxSegments <= 256, "segment bits in a key");
 
 /// Longest linear-probe run a lookup or an insert follows.
 constexpr std::uint32_t kMaxProbes = 64;
@@ -188,28 +196,48 @@ CellGrid::CellGrid(double cell_size, std::uint32_t table_size, std::uint32_t poi
   for (std::size_t i = 0; i < n_ids; ++i) ids_[i].store(kNoId, std::memory_order_relaxed);
 }
 
-CellKey CellGrid::key_of(std::int64_t x, std::int64_t y, std::int64_t z) noexcept {
+CellKey CellGrid::key_of(std::int64_t x, std::int64_t y, std::int64_t z,
+                         std::uint16_t segment) noexcept {
   if (x < kCoordMin || x > kCoordMax || y < kCoordMin || y > kCoordMax || z < kCoordMin ||
-      z > kCoordMax) {
+      z > kCoordMax || segment >= kMaxSegments) {
     return kNoCell;
   }
-  const auto ux = static_cast<std::uint64_t>(x + kCoordOffset);
-  const auto uy = static_cast<std::uint64_t>(y + kCoordOffset);
-  const auto uz = static_cast<std::uint64_t>(z + kCoordOffset);
-  return ux | (uy << kCoordBits) | (uz << (2 * kCoordBits));
+  const std::int64_t c[3] = {x, y, z};
+  CellKey key = 0;
+  for (int k = 0; k < 3; ++k) {
+    const std::uint64_t seg_bits =
+        (std::uint64_t{segment} >> (k * kSegmentBitsPerAxis)) & kSegmentAxisMask;
+    const auto field = static_cast<std::uint64_t>(c[k] + kCoordOffset) ^ (seg_bits << kRangeBits);
+    key |= field << (k * kCoordBits);
+  }
+  return key;
 }
 
-CellKey CellGrid::key_of(const Eigen::Vector3d& p_w) const noexcept {
+CellKey CellGrid::key_of(const Eigen::Vector3d& p_w, std::uint16_t segment) const noexcept {
   return key_of(cell_floor(p_w.x() * inv_cell_size_), cell_floor(p_w.y() * inv_cell_size_),
-                cell_floor(p_w.z() * inv_cell_size_));
+                cell_floor(p_w.z() * inv_cell_size_), segment);
 }
 
 CellCoord CellGrid::coord_of(CellKey key) noexcept {
-  auto axis = [key](int k) {
-    return static_cast<std::int32_t>(
-        static_cast<std::int64_t>((key >> (k * kCoordBits)) & kCoordMask) - kCoordOffset);
-  };
-  return {axis(0), axis(1), axis(2)};
+  CellCoord out;
+  std::int32_t c[3];
+  unsigned segment = 0;
+  for (int k = 0; k < 3; ++k) {
+    const std::uint64_t field = (key >> (k * kCoordBits)) & kCoordMask;
+    // The low kRangeBits are the coordinate modulo 2^kRangeBits (the offset is a multiple of
+    // it): sign-extend them; the top bits then give the segment's bits back.
+    auto v = static_cast<std::int64_t>(field & kRangeMask);
+    if (v > kCoordMax) v -= std::int64_t{1} << kRangeBits;
+    c[k] = static_cast<std::int32_t>(v);
+    const std::uint64_t plain = static_cast<std::uint64_t>(v + kCoordOffset);
+    segment |= static_cast<unsigned>(((field ^ plain) >> kRangeBits) & kSegmentAxisMask)
+               << (k * kSegmentBitsPerAxis);
+  }
+  out.x = c[0];
+  out.y = c[1];
+  out.z = c[2];
+  out.segment = static_cast<std::uint16_t>(segment);
+  return out;
 }
 
 std::uint32_t CellGrid::home_of(CellKey key) const noexcept {
@@ -357,7 +385,7 @@ std::size_t CellGrid::cell_points(CellKey key, std::span<PointId> out) const noe
 }
 
 void CellGrid::scan_table(const Frustum* f, const Eigen::Vector3d* c_w, double radius, int band,
-                          Query& q) const noexcept {
+                          std::uint16_t segment, Query& q) const noexcept {
   double l1[6] = {};
   if (f != nullptr) {
     for (int i = 0; i < 6; ++i) l1[i] = f->normal[i].lpNorm<1>();
@@ -368,6 +396,7 @@ void CellGrid::scan_table(const Frustum* f, const Eigen::Vector3d* c_w, double r
     const CellKey k = keys_[e].load(std::memory_order_acquire);
     if (k == kNoCell || headers_[e].count.load(std::memory_order_relaxed) == 0U) continue;
     const CellCoord cc = coord_of(k);
+    if (cc.segment != segment) continue;
     const Eigen::Vector3d lo(cc.x * cell_size_, cc.y * cell_size_, cc.z * cell_size_);
     if (f != nullptr) {
       const Eigen::Vector3d center = lo + Eigen::Vector3d::Constant(0.5 * cell_size_);
@@ -395,7 +424,8 @@ std::size_t CellGrid::finish(Query& q) const noexcept {
   return q.n;
 }
 
-std::size_t CellGrid::query_frustum(const Frustum& f, std::span<PointId> out) const noexcept {
+std::size_t CellGrid::query_frustum(const Frustum& f, std::uint16_t segment,
+                                    std::span<PointId> out) const noexcept {
   Query q{out};
   q.move_seq0 = move_seq_.load(std::memory_order_acquire);
   if (out.empty()) return 0;
@@ -441,11 +471,11 @@ std::size_t CellGrid::query_frustum(const Frustum& f, std::span<PointId> out) co
   if (scan) {
     // One pass returns everything when it fits. When the output fills up, the pass kept an
     // arbitrary subset: redo it band by band, nearest depth band first.
-    scan_table(&f, nullptr, 0.0, -1, q);
+    scan_table(&f, nullptr, 0.0, -1, segment, q);
     if (q.full()) {
       q.n = 0;
       for (int band = 0; band < kScanBands && !q.full(); ++band) {
-        scan_table(&f, nullptr, 0.0, band, q);
+        scan_table(&f, nullptr, 0.0, band, segment, q);
       }
     }
     return finish(q);
@@ -470,14 +500,14 @@ std::size_t CellGrid::query_frustum(const Frustum& f, std::span<PointId> out) co
                                      (static_cast<double>(coord[1]) + 0.5) * cell_size_,
                                      (static_cast<double>(coord[2]) + 0.5) * cell_size_);
         if (!box_in_frustum(f, l1, center, half)) continue;
-        lookup_and_read(key_of(coord[0], coord[1], coord[2]), q);
+        lookup_and_read(key_of(coord[0], coord[1], coord[2], segment), q);
       }
     }
   }
   return finish(q);
 }
 
-std::size_t CellGrid::query_radius(const Eigen::Vector3d& c_w, double radius,
+std::size_t CellGrid::query_radius(const Eigen::Vector3d& c_w, double radius, std::uint16_t segment,
                                    std::span<PointId> out) const noexcept {
   Query q{out};
   q.move_seq0 = move_seq_.load(std::memory_order_acquire);
@@ -492,7 +522,7 @@ std::size_t CellGrid::query_radius(const Eigen::Vector3d& c_w, double radius,
     if (!clamp_range(lo[k], hi[k])) return 0;
   }
   if (cells * kScanCostRatio > static_cast<double>(table_size_)) {
-    scan_table(nullptr, &c_w, radius, -1, q);
+    scan_table(nullptr, &c_w, radius, -1, segment, q);
     return finish(q);
   }
   const double r2 = radius * radius;
@@ -504,7 +534,7 @@ std::size_t CellGrid::query_radius(const Eigen::Vector3d& c_w, double radius,
                                      static_cast<double>(y) * cell_size_ - m,
                                      static_cast<double>(z) * cell_size_ - m);
         if (box_distance_sq(c_w, corner, cell_size_ + 2.0 * m) > r2) continue;
-        lookup_and_read(key_of(x, y, z), q);
+        lookup_and_read(key_of(x, y, z, segment), q);
       }
     }
   }

@@ -1,10 +1,11 @@
 #pragma once
 /// @file cell_grid.h
 /// Spatial hash of map points: fixed-size open-addressing table of 3D cells keyed by integer
-/// cell coordinates, each cell a fixed array of point ids. One writer at a time (the map's
-/// writer lock) inserts, removes and moves ids; any number of readers look cells up and run frustum
-/// / radius queries without locks. Nothing grows after construction: a full cell or a full table is
-/// counted (failures()), never silent.
+/// cell coordinates and map segment (each segment's world frame is its own: its cells never
+/// hold another segment's points), each cell a fixed array of point ids. One writer at a time (the
+/// map's writer lock) inserts, removes and moves ids; any number of readers look cells up and run
+/// frustum / radius queries without locks. Nothing grows after construction: a full cell or a full
+/// table is counted (failures()), never silent.
 ///
 /// Concurrency design:
 ///  - Table keys are std::atomic words, stored once with release when an entry is claimed;
@@ -42,7 +43,9 @@
 
 namespace mer::map {
 
-/// Integer cell coordinates packed into 63 bits (21 per axis, offset binary).
+/// Integer cell coordinates and a map segment packed into 63 bits: one 21-bit field per axis
+/// holding the coordinate (in [-2^17, 2^17)) in offset binary with 3 bits of the segment
+/// XOR-ed into its top 3 bits (segment 0: plain offset binary).
 using CellKey = std::uint64_t;
 /// No cell (position out of range or not finite); also the empty table-entry marker.
 inline constexpr CellKey kNoCell = ~CellKey{0};
@@ -52,6 +55,7 @@ struct CellCoord {
   std::int32_t x = 0;
   std::int32_t y = 0;
   std::int32_t z = 0;
+  std::uint16_t segment = 0;  ///< map segment (below kMaxSegments)
 };
 
 /// A view frustum in world coordinates: 6 inward planes n.p + d >= 0 and its 8 corners.
@@ -87,12 +91,13 @@ class CellGrid {
   CellGrid(const CellGrid&) = delete;
   CellGrid& operator=(const CellGrid&) = delete;
 
-  /// Cell of a world position; kNoCell when not finite or beyond the coordinate range
-  /// (+-2^20 cells per axis).
-  CellKey key_of(const Eigen::Vector3d& p_w) const noexcept;
-  /// Key of integer coordinates; kNoCell when out of range.
-  static CellKey key_of(std::int64_t x, std::int64_t y, std::int64_t z) noexcept;
-  /// Coordinates of a key (key != kNoCell).
+  /// Cell of a world position of `segment`; kNoCell when not finite, beyond the coordinate
+  /// range (+-2^17 cells per axis) or for a segment of kMaxSegments or more.
+  CellKey key_of(const Eigen::Vector3d& p_w, std::uint16_t segment) const noexcept;
+  /// Key of integer coordinates of `segment`; kNoCell when out of range.
+  static CellKey key_of(std::int64_t x, std::int64_t y, std::int64_t z,
+                        std::uint16_t segment) noexcept;
+  /// Coordinates and segment of a key (key != kNoCell).
   static CellCoord coord_of(CellKey key) noexcept;
 
   // ---- writer (one at a time: the map's writer lock) ----
@@ -107,11 +112,13 @@ class CellGrid {
   // ---- any thread, lock-free ----
   /// Ids in cell `key` (up to out.size()); 0 when absent or not read consistently.
   std::size_t cell_points(CellKey key, std::span<PointId> out) const noexcept;
-  /// Distinct ids of the points in the cells intersecting `f` (up to out.size(), nearest
-  /// cells first when truncated); the count written.
-  std::size_t query_frustum(const Frustum& f, std::span<PointId> out) const noexcept;
-  /// Distinct ids of the cells intersecting the ball (c_w, radius); count written.
-  std::size_t query_radius(const Eigen::Vector3d& c_w, double radius,
+  /// Distinct ids of the points of `segment` in the cells intersecting `f` (up to out.size(),
+  /// nearest cells first when truncated); the count written.
+  std::size_t query_frustum(const Frustum& f, std::uint16_t segment,
+                            std::span<PointId> out) const noexcept;
+  /// Distinct ids of the points of `segment` in the cells intersecting the ball (c_w,
+  /// radius); count written.
+  std::size_t query_radius(const Eigen::Vector3d& c_w, double radius, std::uint16_t segment,
                            std::span<PointId> out) const noexcept;
 
   /// Counters (relaxed snapshot).
@@ -132,7 +139,7 @@ class CellGrid {
   bool read_cell(std::uint32_t entry, CellKey key, Query& q) const noexcept;
   bool lookup_and_read(CellKey key, Query& q) const noexcept;
   void scan_table(const Frustum* f, const Eigen::Vector3d* c_w, double radius, int band,
-                  Query& q) const noexcept;
+                  std::uint16_t segment, Query& q) const noexcept;
   std::size_t finish(Query& q) const noexcept;
   void count_failure(std::atomic<std::uint64_t>& counter) noexcept;
 

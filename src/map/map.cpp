@@ -50,6 +50,7 @@ Map::Map(const MapOptions& opts)
       point_cell_(std::make_unique<CellKey[]>(max_pts_)),
       kf_serial_(std::make_unique<std::uint64_t[]>(max_kf_)),
       pt_serial_(std::make_unique<std::uint64_t[]>(max_pts_)),
+      pt_segment_(std::make_unique<std::uint16_t[]>(max_pts_)),
       kf_retired_(max_kf_),
       pt_retired_(max_pts_),
       covis_weight_(std::make_unique<std::uint32_t[]>(max_kf_)),
@@ -326,6 +327,7 @@ Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
   pt_visible_[id].store(1, std::memory_order_relaxed);  // the creating keyframe saw it
   pt_found_[id].store(1, std::memory_order_relaxed);
   pt_serial_[id] = kf_serial_next_;
+  pt_segment_[id] = kfs_[ref_kf].segment;
   obs_[std::size_t{id} * max_obs_] = Observation::make(ref_kf, ref_kp);
   obs_count_[id] = 1;
   write_point_state(id, load_own(points_[id].state) | kLiveBit);
@@ -335,7 +337,7 @@ Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
   live_pts_.store(load_own(live_pts_) + 1U, std::memory_order_relaxed);
 
   assoc.store(id, std::memory_order_release);
-  const CellKey key = grid_.key_of(p_w);
+  const CellKey key = grid_.key_of(p_w, pt_segment_[id]);
   point_cell_[id] = grid_.insert(id, key) ? key : kNoCell;
   return id;
 }
@@ -405,7 +407,7 @@ void Map::update_point(PointId p) {
 void Map::set_point_position(PointId p, const Eigen::Vector3d& p_w) {
   if (!own_point(p) || !p_w.allFinite()) return;
   write_position(p, p_w);
-  const CellKey key = grid_.key_of(p_w);
+  const CellKey key = grid_.key_of(p_w, pt_segment_[p]);
   if (key == point_cell_[p]) return;
   point_cell_[p] = grid_.move(p, point_cell_[p], key) ? key : kNoCell;
 }
@@ -839,15 +841,16 @@ std::uint32_t Map::covisibility_weight(KeyframeId a, KeyframeId b) const noexcep
 }
 
 std::size_t Map::query_visible(const SE3d& T_w_c, const geometry::Pinhole& K, int width, int height,
-                               double near, double far, std::span<PointId> out) const noexcept {
+                               double near, double far, std::uint16_t segment,
+                               std::span<PointId> out) const noexcept {
   Frustum f;
   if (!Frustum::make(T_w_c, K, width, height, near, far, f)) return 0;
-  return grid_.query_frustum(f, out);
+  return grid_.query_frustum(f, segment, out);
 }
 
-std::size_t Map::query_radius(const Eigen::Vector3d& c_w, double radius,
+std::size_t Map::query_radius(const Eigen::Vector3d& c_w, double radius, std::uint16_t segment,
                               std::span<PointId> out) const noexcept {
-  return grid_.query_radius(c_w, radius, out);
+  return grid_.query_radius(c_w, radius, segment, out);
 }
 
 std::size_t Map::memory_bytes() const noexcept {
@@ -857,14 +860,16 @@ std::size_t Map::memory_bytes() const noexcept {
   b += n_kp * (sizeof(features::Keypoint) + sizeof(features::Descriptor) +
                sizeof(std::atomic<PointId>) + 2 * sizeof(std::atomic<float>));
   b += std::size_t{max_kf_} * max_cov_ * sizeof(std::atomic<std::uint64_t>);
-  b +=
-      max_pts_ * (sizeof(PointSlot) + sizeof(std::uint8_t) + sizeof(CellKey) +
-                  2 * sizeof(std::atomic<std::uint32_t>) + sizeof(std::uint64_t) + sizeof(Retired));
+  b += max_pts_ * (sizeof(PointSlot) + sizeof(std::uint8_t) + sizeof(CellKey) +
+                   2 * sizeof(std::atomic<std::uint32_t>) + sizeof(std::uint64_t) +
+                   sizeof(std::uint16_t) + sizeof(Retired));
   b += max_kf_ * (sizeof(std::uint64_t) + sizeof(Retired));
   b += std::size_t{max_pts_} * max_obs_ * sizeof(Observation);
   b += max_kf_ * (sizeof(std::uint32_t) + sizeof(KeyframeId) + sizeof(CovisibleKeyframe));
   b += (max_cov_ + 1U) * sizeof(CovisibleKeyframe);
   b += (std::size_t{max_obs_} * max_obs_ + max_obs_) * sizeof(int);
+  b += std::size_t{kMaxSegments} * kCorrectionWords * sizeof(std::atomic<std::uint64_t>);
+  b += std::size_t{kMaxSegments} * sizeof(geometry::Sim3d);
   b += grid_.memory_bytes();
   return b;
 }

@@ -368,16 +368,18 @@ class Map {
   std::size_t covisible_keyframes(KeyframeId kf, std::span<CovisibleKeyframe> out) const noexcept;
   /// Weight of the edge a->b as stored in a's list (0 if none).
   std::uint32_t covisibility_weight(KeyframeId a, KeyframeId b) const noexcept;
-  /// Distinct ids of the points in the cells intersecting the view frustum of a camera at
-  /// T_w_c (K, width x height px, camera-z range [near, far] in map units), nearest cell
-  /// layers first (unless a concurrent move forced a de-duplication, which sorts by id).
-  /// A superset of the points that project into the image within [near, far]: filter by
-  /// projection. Up to out.size() ids; the count written (0 for a degenerate camera).
+  /// Distinct ids of the points of `segment` (their reference keyframe's) in the cells
+  /// intersecting the view frustum of a camera at T_w_c (K, width x height px, camera-z range
+  /// [near, far] in that segment's map units), nearest cell layers first (unless a concurrent
+  /// move forced a de-duplication, which sorts by id). A superset of the segment's points
+  /// that project into the image within [near, far]: filter by projection. Up to out.size()
+  /// ids; the count written (0 for a degenerate camera).
   std::size_t query_visible(const SE3d& T_w_c, const geometry::Pinhole& K, int width, int height,
-                            double near, double far, std::span<PointId> out) const noexcept;
-  /// Distinct ids of the points in the cells intersecting the ball (c_w, radius): a superset
-  /// of the points within radius, each within radius + one cell diagonal.
-  std::size_t query_radius(const Eigen::Vector3d& c_w, double radius,
+                            double near, double far, std::uint16_t segment,
+                            std::span<PointId> out) const noexcept;
+  /// Distinct ids of the points of `segment` in the cells intersecting the ball (c_w,
+  /// radius): a superset of its points within radius, each within radius + one cell diagonal.
+  std::size_t query_radius(const Eigen::Vector3d& c_w, double radius, std::uint16_t segment,
                            std::span<PointId> out) const noexcept;
 
   /// Effective options.
@@ -522,11 +524,12 @@ class Map {
   CellGrid grid_;
 
   // Writer-only storage.
-  std::unique_ptr<Observation[]> obs_;          // max_pts x max_obs
-  std::unique_ptr<std::uint8_t[]> obs_count_;   // max_pts
-  std::unique_ptr<CellKey[]> point_cell_;       // cell holding each point, kNoCell if none
-  std::unique_ptr<std::uint64_t[]> kf_serial_;  // max_kf: insertion order of the occupant
-  std::unique_ptr<std::uint64_t[]> pt_serial_;  // max_pts: keyframes_added() at creation
+  std::unique_ptr<Observation[]> obs_;           // max_pts x max_obs
+  std::unique_ptr<std::uint8_t[]> obs_count_;    // max_pts
+  std::unique_ptr<CellKey[]> point_cell_;        // cell holding each point, kNoCell if none
+  std::unique_ptr<std::uint64_t[]> kf_serial_;   // max_kf: insertion order of the occupant
+  std::unique_ptr<std::uint64_t[]> pt_serial_;   // max_pts: keyframes_added() at creation
+  std::unique_ptr<std::uint16_t[]> pt_segment_;  // max_pts: segment (of the reference keyframe)
   RetireQueue kf_retired_;
   RetireQueue pt_retired_;
   std::uint64_t kf_serial_next_ = 0;

@@ -274,8 +274,9 @@ TEST(MapConcurrency, WriterAndReaderNeverSeeTornOrUnpublishedData) {
       const Eigen::Vector3d target(kRoom.x() * u(rng), kRoom.y() * u(rng), kRoom.z() * u(rng));
       const SE3d T =
           look_at(eye, target + Eigen::Vector3d(0.01, 0.02, 0.03), Eigen::Vector3d(0, -1, 0));
-      check_ids(map.query_visible(T, K, 640, 480, 0.1, st.iterations % 8 == 0 ? 20.0 : 4.0, ids));
-      check_ids(map.query_radius(eye, 1.0, ids));
+      check_ids(
+          map.query_visible(T, K, 640, 480, 0.1, st.iterations % 8 == 0 ? 20.0 : 4.0, 0, ids));
+      check_ids(map.query_radius(eye, 1.0, 0, ids));
       st.queries += 2;
     }
   }
@@ -309,7 +310,7 @@ TEST(MapConcurrency, WriterAndReaderNeverSeeTornOrUnpublishedData) {
       EXPECT_TRUE(map.point_is_bad(p));
       continue;
     }
-    const std::size_t n = map.query_radius(v.p_w, 0.0, near);
+    const std::size_t n = map.query_radius(v.p_w, 0.0, 0, near);
     EXPECT_EQ(std::count(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(n), p), 1)
         << "point " << p;
   }

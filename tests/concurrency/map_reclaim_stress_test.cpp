@@ -222,12 +222,12 @@ TEST(MapReclaimConcurrency, ReusedSlotsAreNeverSeenTornOrUnderAnUnchangedGenerat
       }
     }
     if (st.iterations % 8 == 0) {
-      const std::size_t n = map.query_radius(Eigen::Vector3d::Zero(), kRoom, ids);
+      const std::size_t n = map.query_radius(Eigen::Vector3d::Zero(), kRoom, 0, ids);
       for (std::size_t i = 0; i < n; ++i) {
         PointView v;
         if (map.read_point(ids[i], v)) st.torn += v.p_w.z() == z_of(v.p_w.x(), v.p_w.y()) ? 0 : 1;
       }
-      (void)map.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 10.0, ids);
+      (void)map.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 10.0, 0, ids);
     }
   }
   writer.join();

@@ -29,25 +29,83 @@ bool distinct(std::span<const PointId> ids) {
 
 TEST(CellGrid, KeyRoundTripAndRange) {
   CellGrid g(kCell, 64, 4);
-  const CellKey k = g.key_of(Eigen::Vector3d(-0.01, 0.3, 2.6));
+  const CellKey k = g.key_of(Eigen::Vector3d(-0.01, 0.3, 2.6), 0);
   ASSERT_NE(k, kNoCell);
   const CellCoord c = CellGrid::coord_of(k);
   EXPECT_EQ(c.x, -1);
   EXPECT_EQ(c.y, 1);
   EXPECT_EQ(c.z, 10);
-  EXPECT_EQ(CellGrid::key_of(c.x, c.y, c.z), k);
-  const CellCoord lo = CellGrid::coord_of(CellGrid::key_of(-(1 << 20), (1 << 20) - 1, 0));
-  EXPECT_EQ(lo.x, -(1 << 20));
-  EXPECT_EQ(lo.y, (1 << 20) - 1);
-  EXPECT_EQ(CellGrid::key_of(1 << 20, 0, 0), kNoCell);
-  EXPECT_EQ(g.key_of(Eigen::Vector3d(1e9, 0.0, 0.0)), kNoCell);
-  EXPECT_EQ(g.key_of(Eigen::Vector3d(std::nan(""), 0.0, 0.0)), kNoCell);
+  EXPECT_EQ(CellGrid::key_of(c.x, c.y, c.z, 0), k);
+  const CellCoord lo = CellGrid::coord_of(CellGrid::key_of(-(1 << 17), (1 << 17) - 1, 0, 0));
+  EXPECT_EQ(lo.x, -(1 << 17));
+  EXPECT_EQ(lo.y, (1 << 17) - 1);
+  EXPECT_EQ(CellGrid::key_of(1 << 17, 0, 0, 0), kNoCell);
+  EXPECT_EQ(CellGrid::key_of(0, -(1 << 17) - 1, 0, 0), kNoCell);
+  EXPECT_EQ(CellGrid::key_of(0, 0, 0, kMaxSegments), kNoCell);
+  EXPECT_EQ(g.key_of(Eigen::Vector3d(1e9, 0.0, 0.0), 0), kNoCell);
+  EXPECT_EQ(g.key_of(Eigen::Vector3d(std::nan(""), 0.0, 0.0), 0), kNoCell);
+}
+
+// Every (coordinates, segment) has its own key, and the key gives both back: the same cell
+// of two segments (unrelated world frames) is two cells.
+TEST(CellGrid, KeysAreDistinctPerSegmentAndRoundTrip) {
+  const std::int64_t coords[] = {-(1 << 17), -(1 << 16) - 3, -1, 0, 1, 4097, (1 << 17) - 1};
+  std::vector<CellKey> keys;
+  for (const std::int64_t x : coords) {
+    for (const std::int64_t y : coords) {
+      for (const std::int64_t z : {coords[0], coords[3], coords[6]}) {
+        for (const unsigned seg : {0U, 1U, 7U, 8U, 63U, 64U, 200U, 255U}) {
+          const auto segment = static_cast<std::uint16_t>(seg);
+          const CellKey k = CellGrid::key_of(x, y, z, segment);
+          ASSERT_NE(k, kNoCell);
+          const CellCoord c = CellGrid::coord_of(k);
+          EXPECT_EQ(c.x, x);
+          EXPECT_EQ(c.y, y);
+          EXPECT_EQ(c.z, z);
+          EXPECT_EQ(c.segment, segment);
+          keys.push_back(k);
+        }
+      }
+    }
+  }
+  std::sort(keys.begin(), keys.end());
+  EXPECT_EQ(std::adjacent_find(keys.begin(), keys.end()), keys.end());
+}
+
+// Segments 0 and 1 each fill the same cells (their world frames overlap): a query of one
+// segment returns that segment's points only, all of them, whether it marches cells or scans
+// the table, and a full output is not taken by the other segment's points.
+TEST(CellGrid, QueriesReturnTheirSegmentOnly) {
+  CellGrid g(kCell, 65536, 48);
+  constexpr PointId kPerSegment = 200;
+  for (PointId i = 0; i < 2 * kPerSegment; ++i) {
+    const auto segment = static_cast<std::uint16_t>(i / kPerSegment);
+    const PointId j = i % kPerSegment;
+    const Eigen::Vector3d p(0.1 * static_cast<double>(j % 10) - 0.5,
+                            0.1 * static_cast<double>((j / 10) % 5) - 0.25,
+                            1.0 + 0.1 * static_cast<double>(j / 50));
+    ASSERT_TRUE(g.insert(i, g.key_of(p, segment)));
+  }
+  const geometry::Pinhole K{300.0, 300.0, 320.0, 240.0};
+  for (const double far : {1.6, 500.0}) {  // marched, then a table scan
+    Frustum f;
+    ASSERT_TRUE(Frustum::make(SE3d::Identity(), K, 640, 480, 0.1, far, f));
+    for (const std::uint16_t segment : {std::uint16_t{0}, std::uint16_t{1}}) {
+      std::vector<PointId> out(kPerSegment);
+      const std::size_t n = g.query_frustum(f, segment, out);
+      EXPECT_EQ(n, kPerSegment) << "segment " << segment << ", far " << far;
+      for (std::size_t k = 0; k < n; ++k) EXPECT_EQ(out[k] / kPerSegment, segment);
+    }
+  }
+  std::vector<PointId> out(2 * kPerSegment);
+  EXPECT_EQ(g.query_radius(Eigen::Vector3d(0.0, 0.0, 1.5), 3.0, 1, out), kPerSegment);
+  EXPECT_EQ(g.query_radius(Eigen::Vector3d(0.0, 0.0, 1.5), 3.0, 2, out), 0U);
 }
 
 TEST(CellGrid, InsertRemoveMove) {
   CellGrid g(kCell, 64, 8);
-  const CellKey a = g.key_of(Eigen::Vector3d(0.1, 0.1, 0.1));
-  const CellKey b = g.key_of(Eigen::Vector3d(1.1, 0.1, 0.1));
+  const CellKey a = g.key_of(Eigen::Vector3d(0.1, 0.1, 0.1), 0);
+  const CellKey b = g.key_of(Eigen::Vector3d(1.1, 0.1, 0.1), 0);
   ASSERT_NE(a, b);
   for (PointId id = 0; id < 5; ++id) ASSERT_TRUE(g.insert(id, a));
   PointId buf[16];
@@ -75,7 +133,7 @@ TEST(CellGrid, InsertRemoveMove) {
 TEST(CellGrid, FullCellIsCountedNotSilent) {
   CellGrid g(kCell, 64, 4);
   const std::size_t bytes = g.memory_bytes();
-  const CellKey a = g.key_of(Eigen::Vector3d::Zero());
+  const CellKey a = g.key_of(Eigen::Vector3d::Zero(), 0);
   for (PointId id = 0; id < 4; ++id) ASSERT_TRUE(g.insert(id, a));
   EXPECT_FALSE(g.insert(4, a));
   EXPECT_FALSE(g.insert(5, a));
@@ -96,7 +154,7 @@ TEST(CellGrid, FullTableIsCountedAndEmptyCellsAreReused) {
   CellGrid g(kCell, kTable, 2);
   const std::size_t bytes = g.memory_bytes();
   std::vector<CellKey> keys;
-  for (int i = 0; i < 100; ++i) keys.push_back(CellGrid::key_of(i, 2 * i, -i));
+  for (int i = 0; i < 100; ++i) keys.push_back(CellGrid::key_of(i, 2 * i, -i, 0));
   std::uint32_t ok = 0;
   for (int i = 0; i < 100; ++i) ok += g.insert(static_cast<PointId>(i), keys[i]) ? 1U : 0U;
   EXPECT_EQ(ok, kTable);  // every entry used, the rest counted
@@ -113,11 +171,11 @@ TEST(CellGrid, FullTableIsCountedAndEmptyCellsAreReused) {
     }
   }
   for (int i = 0; i < static_cast<int>(kTable); ++i) {
-    EXPECT_TRUE(g.insert(static_cast<PointId>(1000 + i), CellGrid::key_of(-i, 5, 7 * i)));
+    EXPECT_TRUE(g.insert(static_cast<PointId>(1000 + i), CellGrid::key_of(-i, 5, 7 * i, 0)));
   }
   EXPECT_EQ(g.stats().used_entries, kTable);
   for (int i = 0; i < static_cast<int>(kTable); ++i) {
-    ASSERT_EQ(g.cell_points(CellGrid::key_of(-i, 5, 7 * i), buf), 1u);
+    ASSERT_EQ(g.cell_points(CellGrid::key_of(-i, 5, 7 * i, 0), buf), 1u);
     EXPECT_EQ(buf[0], static_cast<PointId>(1000 + i));
   }
 }
@@ -146,7 +204,7 @@ struct Room {
     std::uniform_real_distribution<double> u(-1.0, 1.0);
     for (int i = 0; i < n; ++i) {
       pts.emplace_back(u(rng) * half.x(), u(rng) * half.y(), u(rng) * half.z());
-      EXPECT_TRUE(g.insert(static_cast<PointId>(i), g.key_of(pts.back())));
+      EXPECT_TRUE(g.insert(static_cast<PointId>(i), g.key_of(pts.back(), 0)));
     }
   }
   SE3d random_pose() {
@@ -186,7 +244,7 @@ void check_frustum_superset(double far, double max_ratio) {
     const SE3d T = room.random_pose();
     Frustum f;
     ASSERT_TRUE(Frustum::make(T, K, 640, 480, 0.1, far, f));
-    const std::size_t n = g.query_frustum(f, out);
+    const std::size_t n = g.query_frustum(f, 0, out);
     const std::span<const PointId> got(out.data(), n);
     ASSERT_TRUE(distinct(got));
     const std::vector<PointId> truth = brute_visible(room.pts, T, K, 640, 480, 0.1, far);
@@ -225,9 +283,9 @@ void check_nearest_first(double far) {
   Frustum f;
   ASSERT_TRUE(Frustum::make(T, K, 640, 480, 0.1, far, f));
   std::vector<PointId> all(20000);
-  const std::size_t n_all = g.query_frustum(f, all);
+  const std::size_t n_all = g.query_frustum(f, 0, all);
   std::vector<PointId> few(200);
-  const std::size_t n = g.query_frustum(f, few);
+  const std::size_t n = g.query_frustum(f, 0, few);
   ASSERT_EQ(n, 200u);
   ASSERT_TRUE(distinct({few.data(), n}));
   // All 200 are nearer than the 20% quantile of all the returned points (plus one band).
@@ -256,7 +314,7 @@ TEST(CellGrid, RadiusQueryMatchesBruteForce) {
     const Eigen::Vector3d c(u(room.rng) * 4, u(room.rng) * 1.5, u(room.rng) * 4);
     // Small radii (march) and one huge radius (table scan).
     const double r = trial == 99 ? 20.0 : ur(room.rng);
-    const std::size_t n = g.query_radius(c, r, out);
+    const std::size_t n = g.query_radius(c, r, 0, out);
     const std::span<const PointId> got(out.data(), n);
     ASSERT_TRUE(distinct(got));
     const std::vector<PointId> s = sorted(got);
@@ -273,7 +331,7 @@ TEST(CellGrid, RadiusQueryMatchesBruteForce) {
     }
     (void)truth;
   }
-  EXPECT_EQ(g.query_radius(Eigen::Vector3d::Zero(), -1.0, out), 0u);
+  EXPECT_EQ(g.query_radius(Eigen::Vector3d::Zero(), -1.0, 0, out), 0u);
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <mutex>
 #include <random>
+#include <set>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -291,8 +292,51 @@ TEST(Map, AddPointAssociatesAndReads) {
   EXPECT_EQ(m.num_points(), 1u);
 
   PointId buf[8];
-  ASSERT_EQ(m.query_radius(p_w, 0.01, buf), 1u);
+  ASSERT_EQ(m.query_radius(p_w, 0.01, 0, buf), 1u);
   EXPECT_EQ(buf[0], p);
+}
+
+// Two segments' points at the same coordinates (their world frames overlap): each lands in
+// its own segment's cells, a query returns the asked segment's only, and moving a point keeps
+// it in its segment.
+TEST(Map, CellQueriesKeepSegmentsApart) {
+  Map m(small_options());
+  const KfData d = make_kf(8, 1);
+  KeyframeInput in0 = d.input(SE3d::Identity(), 1);
+  KeyframeInput in1 = d.input(SE3d::Identity(), 2);
+  in1.segment = 1;
+  const Result<KeyframeId> kf0 = m.add_keyframe(in0);
+  const Result<KeyframeId> kf1 = m.add_keyframe(in1);
+  ASSERT_TRUE(kf0.is_ok() && kf1.is_ok());
+  std::vector<PointId> seg0;
+  std::vector<PointId> seg1;
+  for (std::uint32_t k = 0; k < 4; ++k) {
+    const Eigen::Vector3d p_w(0.01 * k, 0.0, 2.0);
+    const Result<PointId> a = m.add_point(p_w, kf0.value(), k);
+    const Result<PointId> b = m.add_point(p_w, kf1.value(), k);
+    ASSERT_TRUE(a.is_ok() && b.is_ok());
+    seg0.push_back(a.value());
+    seg1.push_back(b.value());
+  }
+  const geometry::Pinhole K{300.0, 300.0, 320.0, 240.0};
+  PointId buf[16];
+  for (const std::uint16_t segment : {std::uint16_t{0}, std::uint16_t{1}}) {
+    const std::vector<PointId>& want = segment == 0 ? seg0 : seg1;
+    std::size_t n = m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 5.0, segment, buf);
+    EXPECT_EQ(std::set<PointId>(buf, buf + n), std::set<PointId>(want.begin(), want.end()));
+    n = m.query_radius(Eigen::Vector3d(0.0, 0.0, 2.0), 0.1, segment, buf);
+    EXPECT_EQ(std::set<PointId>(buf, buf + n), std::set<PointId>(want.begin(), want.end()));
+    // A 4-id output is not taken by the other segment's points.
+    n = m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 5.0, segment, std::span(buf, 4));
+    EXPECT_EQ(std::set<PointId>(buf, buf + n), std::set<PointId>(want.begin(), want.end()));
+  }
+  {
+    std::lock_guard<platform::PiMutex> lock(m.writer_lock());
+    m.set_point_position(seg1[0], Eigen::Vector3d(3.0, 0.0, 2.0));
+  }
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(3.0, 0.0, 2.0), 0.1, 0, buf), 0U);
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(3.0, 0.0, 2.0), 0.1, 1, buf), 1U);
+  EXPECT_EQ(buf[0], seg1[0]);
 }
 
 TEST(Map, PointsFullNamesTheOption) {
@@ -337,7 +381,7 @@ TEST(Map, ObservationRules) {
   EXPECT_EQ(m.point_num_observations(p), 0u);
   EXPECT_FALSE(m.add_observation(p, kfs[4], 0));
   PointId buf[8];
-  const std::size_t n = m.query_radius(Eigen::Vector3d(0, 0, 3), 0.5, buf);
+  const std::size_t n = m.query_radius(Eigen::Vector3d(0, 0, 3), 0.5, 0, buf);
   EXPECT_EQ(std::count(buf, buf + n, p), 0);
   // The freed keypoint can carry a new point; ids keep increasing.
   EXPECT_EQ(add_pt(m, Eigen::Vector3d(0, 0, 3), kfs[0], 0), q + 1);
@@ -433,27 +477,27 @@ TEST(Map, MovingPointsAcrossCells) {
   const PointId a = add_pt(m, Eigen::Vector3d(0.1, 0.1, 1.1), kf, 0);
   const PointId b = add_pt(m, Eigen::Vector3d(0.12, 0.1, 1.1), kf, 1);
   PointId buf[16];
-  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 2u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, 0, buf), 2u);
   // Within the same cell.
   m.set_point_position(a, Eigen::Vector3d(0.2, 0.2, 1.2));
-  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 2u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, 0, buf), 2u);
   // To another cell.
   m.set_point_position(a, Eigen::Vector3d(3.0, -1.0, 2.0));
-  ASSERT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, buf), 1u);
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(0.1, 0.1, 1.1), 0.05, 0, buf), 1u);
   EXPECT_EQ(buf[0], b);
-  ASSERT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, buf), 1u);
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, 0, buf), 1u);
   EXPECT_EQ(buf[0], a);
   PointView v;
   ASSERT_TRUE(m.read_point(a, v));
   EXPECT_EQ(v.p_w, Eigen::Vector3d(3.0, -1.0, 2.0));
   const CellGrid& g = m.cell_grid();
-  EXPECT_EQ(g.cell_points(g.key_of(Eigen::Vector3d(3.0, -1.0, 2.0)), buf), 1u);
+  EXPECT_EQ(g.cell_points(g.key_of(Eigen::Vector3d(3.0, -1.0, 2.0), 0), buf), 1u);
   // Out of range: counted, the point still exists, and it comes back when moved in range.
   m.set_point_position(a, Eigen::Vector3d(1e9, 0, 0));
   EXPECT_EQ(m.cell_insert_failures(), 1u);
-  EXPECT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, buf), 0u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(3.0, -1.0, 2.0), 0.01, 0, buf), 0u);
   m.set_point_position(a, Eigen::Vector3d(1.0, 1.0, 1.0));
-  ASSERT_EQ(m.query_radius(Eigen::Vector3d(1.0, 1.0, 1.0), 0.01, buf), 1u);
+  ASSERT_EQ(m.query_radius(Eigen::Vector3d(1.0, 1.0, 1.0), 0.01, 0, buf), 1u);
   EXPECT_EQ(buf[0], a);
   EXPECT_EQ(m.cell_insert_failures(), 1u);
 }
@@ -470,11 +514,11 @@ TEST(Map, FullCellCountedAndPointStillUsable) {
   PointView v;
   EXPECT_TRUE(m.read_point(3, v));
   PointId buf[8];
-  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, buf), 2u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, 0, buf), 2u);
   // Freeing the cell and moving the homeless point in makes it findable again.
   m.set_point_bad(0);
   m.set_point_position(3, Eigen::Vector3d(0.05, 0.0, 1.02));
-  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, buf), 2u);
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0, 0, 1.01), 0.1, 0, buf), 2u);
   EXPECT_EQ(std::count(buf, buf + 2, PointId{3}), 1);
 }
 
@@ -806,9 +850,9 @@ TEST(Map, NoAllocationAfterConstruction) {
   sink += m.read_point(3, v) ? 1 : 0;
   sink += m.point_is_bad(7) ? 1 : 0;
   sink += m.covisible_keyframes(0, cov) + m.covisibility_weight(0, 1);
-  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 5.0, ids);
-  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 500.0, ids);  // table scan
-  sink += m.query_radius(Eigen::Vector3d(0, 0.5, 2.0), 1.0, ids);
+  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 5.0, 0, ids);
+  sink += m.query_visible(SE3d::Identity(), K, 640, 480, 0.1, 500.0, 0, ids);  // table scan
+  sink += m.query_radius(Eigen::Vector3d(0, 0.5, 2.0), 1.0, 0, ids);
   sink += m.cell_insert_failures();
   const std::uint64_t after = platform::alloc::thread_allocations();
 
@@ -860,7 +904,7 @@ TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
   for (int rep = 0; rep < 5; ++rep) {
     for (const SE3d& T : poses) {
       const auto t0 = std::chrono::steady_clock::now();
-      const std::size_t n = m.query_visible(T, K, 640, 480, 0.1, 5.0, out);
+      const std::size_t n = m.query_visible(T, K, 640, 480, 0.1, 5.0, 0, out);
       const auto t1 = std::chrono::steady_clock::now();
       times.push_back(std::chrono::duration<double, std::micro>(t1 - t0).count());
       if (rep == 0) {
