@@ -49,7 +49,7 @@ QUICK_TIMING_FRAMES=90  # 3 s at 30 Hz per threaded run
 
 # The benchmark binaries of tests/bench/CMakeLists.txt, in tests/bench/ of the build.
 BENCHES=(mer_bench_platform mer_bench_hal mer_bench_geometry mer_bench_features mer_bench_depth
-         mer_bench_loop mer_bench_frontend)
+         mer_bench_loop mer_bench_map mer_bench_frontend)
 # Repetitions per binary (the document gives the median over them). One repetition takes
 # 2-11 s per binary, except mer_bench_frontend (Iterations(1) over rendered sequences): about
 # 20 s, so 3 of it. All together about 3.5 minutes.

@@ -42,6 +42,13 @@ KeyframeDatabase::KeyframeDatabase(const map::Map& map)
   free_block_ = 0;
 }
 
+std::size_t KeyframeDatabase::memory_bytes() const {
+  return sizeof(*this) + slots_.size() * sizeof(Slot) + key_.size() * sizeof(std::uint16_t) +
+         blocks_.size() * sizeof(Block) + head_.size() * sizeof(std::uint32_t) +
+         frequency_.size() * sizeof(std::uint32_t) + query_keys_.size() * sizeof(std::uint16_t) +
+         scores_.size() * sizeof(double);
+}
+
 void KeyframeDatabase::post(std::size_t h, std::uint16_t slot) {
   std::uint32_t b = head_[h];
   if (b == kNone || blocks_[b].count == kBlockIds) {

@@ -24,14 +24,16 @@
 /// Memory and real time: the constructor preallocates everything from the map's capacities
 /// (map.max_keyframes x map.max_keypoints_per_keyframe x kKeyTables keys, 2 B each, posting
 /// blocks of 13 slots in 32 B for them and for every (table, key) once, plus 1 MiB of key
-/// frequencies and 1 MiB of list heads: 14 MiB at the default 400 x 1500); no method allocates
-/// afterwards. Descriptors beyond map.max_keypoints_per_keyframe in a query are ignored.
+/// frequencies and 1 MiB of list heads: 20.2 MiB at the default 400 x 1500, memory_bytes());
+/// no method allocates afterwards. Descriptors beyond map.max_keypoints_per_keyframe in a
+/// query are ignored.
 ///
-/// Threading: not internally synchronized; one thread uses an instance at a time. refresh()
-/// reads keyframe descriptors through the map's lock-free reader group (immutable while the
-/// slot is live), so it runs on a registered reader thread or under the writer lock. The loop
-/// closer owns one (back-end thread); a relocalizer on another thread keeps its own (or, in
-/// lockstep, shares the loop closer's: refreshing is idempotent).
+/// Threading: one instance serves the loop closer (back-end thread) and the relocalizer
+/// (depth thread, threaded mode): each holds mutex() across a refresh, a query or a score_*
+/// call and its use of the span that returns (refreshing is idempotent, so either may key a
+/// new keyframe first). refresh() reads keyframe descriptors through the map's lock-free
+/// reader group (immutable while the slot is live), so it runs on a registered reader thread
+/// or under the map's writer lock.
 
 #include <array>
 #include <cstddef>
@@ -41,6 +43,7 @@
 
 #include "features/keypoint.h"
 #include "map/map.h"
+#include "platform/pi_mutex.h"
 
 namespace mer::loop {
 
@@ -87,6 +90,10 @@ class KeyframeDatabase {
   std::uint32_t size() const { return keyed_; }
   /// Keyframe slots it can hold (map.max_keyframes).
   std::size_t capacity() const { return slots_.size(); }
+  /// Bytes of preallocated storage.
+  std::size_t memory_bytes() const;
+  /// The lock its users on different threads hold across each use (file comment).
+  platform::PiMutex& mutex() const { return mutex_; }
   /// Distinct keys of table t of slot kf, sorted (empty when not keyed).
   std::span<const std::uint16_t> keys(map::KeyframeId kf, int t) const;
   /// Keyed keyframes with key `key` in table t.
@@ -133,6 +140,7 @@ class KeyframeDatabase {
   void unpost(std::size_t h, std::uint16_t slot);
 
   const map::Map& map_;
+  mutable platform::PiMutex mutex_;
   std::size_t per_table_ = 0;  ///< keys per table and slot, at most
   std::vector<Slot> slots_;
   std::vector<std::uint16_t> key_;        ///< per slot, table and position: its key

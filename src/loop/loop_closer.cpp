@@ -203,6 +203,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   };
   std::vector<Candidate> ranked;
   std::vector<Candidate> scored;
+  std::unique_lock<platform::PiMutex> db_lock(db_.mutex());  // until key_scores is read
   (void)db_.refresh(kf);
   db_.refresh_live();  // key frequencies first
   const std::span<const double> key_scores = db_.score_keyframe(kf);
@@ -232,6 +233,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       scored.push_back(Candidate{false, key_scores[id], id});
     }
   }
+  db_lock.unlock();
   double bar = 0.0;
   if (!scored.empty()) {
     std::vector<double> v;

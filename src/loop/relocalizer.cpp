@@ -68,8 +68,12 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
   const RelocQuery frame{q.seq, q.t_ns, q.keypoints.first(n_kp), q.descriptors.first(n_kp), q.K};
 
   // 1. Retrieval.
-  db_.refresh_live();
-  const std::size_t nh = db_.query(frame.descriptors, hits_);
+  std::size_t nh = 0;
+  {
+    const std::lock_guard<platform::PiMutex> lock(db_.mutex());
+    db_.refresh_live();
+    nh = db_.query(frame.descriptors, hits_);
+  }
   r.retrieved = static_cast<int>(nh);
   build_grid(frame, n_kp);
 

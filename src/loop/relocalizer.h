@@ -33,10 +33,9 @@
 /// keypoint positions or writer-side state, so it can run on any thread without the writer
 /// lock. Threaded: give it a map reader handle (Map::register_reader(), a setup call); it
 /// announces a quiescent point at the start of each spin_once. Lockstep: call it inline with
-/// map_reader = -1. The KeyframeDatabase it queries is refreshed by spin_once (new keyframes
-/// keyed, reused slots re-keyed) and must not be used by another thread meanwhile: a
-/// relocalizer on its own thread gets its own database; in lockstep it may share the loop
-/// closer's. One Relocalizer per thread (scratch buffers).
+/// map_reader = -1. The KeyframeDatabase it queries (the loop closer's) is refreshed by
+/// spin_once (new keyframes keyed, reused slots re-keyed) under the database's lock, so the
+/// loop closer may use it from another thread. One Relocalizer per thread (scratch buffers).
 
 #include <cstdint>
 #include <memory>

@@ -145,18 +145,16 @@ Status Pipeline::init(const std::string& output_dir) {
                                              builder_->metric_map_depth(), ba_.get());
   if (config_.relocalization.enabled) {
     int reader = -1;
-    loop::KeyframeDatabase* db = &loop_->database();
     if (!config_.pipeline.lockstep) {
-      // Threaded, it runs on the depth thread: a registered map reader with its own database.
+      // Threaded, it runs on the depth thread: a registered map reader. It shares the loop
+      // closer's keyframe database (under the database's lock).
       Result<int> r = map_->register_reader();
       if (!r.is_ok()) return r.status();
       reader = r.value();
       reloc_reader_ = reader;
-      reloc_db_ = std::make_unique<loop::KeyframeDatabase>(*map_);
-      db = reloc_db_.get();
     }
-    relocalizer_ = std::make_unique<loop::Relocalizer>(config_.relocalization, *map_, *db, reader,
-                                                       config_.pipeline.lockstep);
+    relocalizer_ = std::make_unique<loop::Relocalizer>(
+        config_.relocalization, *map_, loop_->database(), reader, config_.pipeline.lockstep);
     tracker_->reserve_relocalization_request(reloc_request_);
     tracker_->enable_relocalization(true);
   }

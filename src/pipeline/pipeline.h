@@ -262,9 +262,6 @@ class Pipeline {
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   std::unique_ptr<backend::MapCuller> culler_;
   std::unique_ptr<loop::LoopCloser> loop_;
-  /// Threaded: the relocalizer's own keyframe database (it runs on the depth thread while
-  /// loop closure queries its own on the back-end thread); lockstep shares loop_'s.
-  std::unique_ptr<loop::KeyframeDatabase> reloc_db_;
   std::unique_ptr<loop::Relocalizer> relocalizer_;  ///< null when relocalization.enabled is off
   frontend::RelocalizationRequest reloc_request_;
   int reloc_reader_ = -1;  ///< threaded: the relocalizer's map-reader handle (depth thread)

@@ -137,5 +137,16 @@ TEST(KeyframeDatabase, QueryDoesNotAllocate) {
   EXPECT_GT(n, 0U);
 }
 
+// The storage at the map's default capacities (400 keyframes x 1500 keypoints) is the figure
+// the file comment and docs/relocalization.md give: one instance, shared by loop closure and
+// relocalization.
+TEST(KeyframeDatabase, MemoryAtTheDefaultsIsTheDocumentedFigure) {
+  const map::Map map{map::MapOptions{}};
+  const KeyframeDatabase db(map);
+  const double mib = static_cast<double>(db.memory_bytes()) / (1024.0 * 1024.0);
+  std::printf("keyframe database: %.2f MiB at the defaults\n", mib);
+  EXPECT_NEAR(mib, 20.2, 0.05);
+}
+
 }  // namespace
 }  // namespace mer::loop

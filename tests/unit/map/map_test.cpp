@@ -1,6 +1,7 @@
 // Map: options, keyframes and points, associations, descriptors, covisibility, cell moves,
 // keyframe removal, slot reuse gated by registered readers and stale-id detection by
-// generation, zero allocations after construction and the query_visible time budget.
+// generation, zero allocations after construction and how tight query_visible's superset is (its
+// time: tests/bench/map_bench.cpp).
 #include "map/map.h"
 
 #include <algorithm>
@@ -867,7 +868,7 @@ TEST(Map, NoAllocationAfterConstruction) {
 
 // ---- performance ---------------------------------------------------------------------------
 
-TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
+TEST(Map, QueryVisibleIsATightSupersetOnAnIndoorScene) {
   // 20k points on the walls, floor and ceiling of an 8 x 3 x 8 room (map units, median
   // depth ~1-3); cameras inside looking around; 640x480, depth range [0.1, 5].
   MapOptions o;
@@ -927,7 +928,7 @@ TEST(Map, QueryVisibleIsFastOnAnIndoorScene) {
       "returned / visible = %.3f\n",
       median, p95, times.back(), static_cast<double>(total) / 200.0,
       static_cast<double>(total) / static_cast<double>(visible));
-  EXPECT_LT(median, 1000.0);  // generous: the target is well under 1 ms on a loaded machine
+  // (Its time is measured by tests/bench/map_bench.cpp, BM_QueryVisibleIndoor.)
   EXPECT_LT(static_cast<double>(total) / static_cast<double>(visible), 1.6);
 }
 
