@@ -236,6 +236,25 @@ struct LocalBundleAdjuster::Workspace {
   std::vector<ceres::ResidualBlockId> outliers;
 };
 
+std::string_view to_string(DepthEdgeMode m) {
+  switch (m) {
+    case DepthEdgeMode::kMetric:
+      return "metric";
+    case DepthEdgeMode::kScaled:
+      return "scaled";
+    case DepthEdgeMode::kOff:
+      break;
+  }
+  return "off";
+}
+
+DepthEdgeMode parse_depth_edges(std::string_view s, bool metric_depth) {
+  if (s == "metric") return DepthEdgeMode::kMetric;
+  if (s == "scaled") return DepthEdgeMode::kScaled;
+  if (s == "auto") return metric_depth ? DepthEdgeMode::kMetric : DepthEdgeMode::kOff;
+  return DepthEdgeMode::kOff;
+}
+
 LocalBundleAdjuster::~LocalBundleAdjuster() = default;
 
 LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& map,
@@ -245,8 +264,7 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
       deterministic_(deterministic),
-      depth_mode_(opts.depth_edges == "auto" ? (metric_depth ? "metric" : "off")
-                                             : opts.depth_edges),
+      depth_mode_(parse_depth_edges(opts.depth_edges, metric_depth)),
       ws_(std::make_unique<Workspace>(opts.huber_sigmas, opts.anchored_sigma_scale)) {
   // The window's poses and points: reserved for the configured window sizes up front.
   const auto window = static_cast<std::size_t>(std::max(0, opts_.window_keyframes));
@@ -437,7 +455,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   //    polled. The problem outlives the run (Workspace): its evaluation callback, `stop`,
   //    does not, which is fine as only its destruction is left, and that does not call it.
   if (!stop.stop()) (void)stop.check(LocalBaPoll::kBuild);
-  const bool use_depth = depth_mode_ != "off";
+  const bool use_depth = depth_mode_ != DepthEdgeMode::kOff;
   auto& reprojection_costs = ws.reprojection_costs;
   auto& depth_costs = ws.depth_costs;
   reprojection_costs.reset(max_blocks);
@@ -528,7 +546,8 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     }
     // Metric depth keeps its scale; in scaled mode a free keyframe's scale is optimized
     // (a fixed keyframe's scale stays 1: its depth is already aligned to the map).
-    if (problem.HasParameterBlock(&b.depth_scale) && (b.fixed || depth_mode_ != "scaled")) {
+    if (problem.HasParameterBlock(&b.depth_scale) &&
+        (b.fixed || depth_mode_ != DepthEdgeMode::kScaled)) {
       problem.SetParameterBlockConstant(&b.depth_scale);
     }
   }
@@ -683,7 +702,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     T_c_w.translation() = Eigen::Vector3d(b.t[0], b.t[1], b.t[2]);
     map_.set_keyframe_pose(id, T_c_w.inverse());
     // The optimized depth scale is folded into the keyframe's local depth.
-    if (depth_mode_ == "scaled" && b.depth_scale > 0.0 && b.depth_scale != 1.0) {
+    if (depth_mode_ == DepthEdgeMode::kScaled && b.depth_scale > 0.0 && b.depth_scale != 1.0) {
       const auto nk = static_cast<std::uint32_t>(map_.keyframe_keypoints(id).size());
       for (std::uint32_t k = 0; k < nk; ++k) {
         const float d = map_.keyframe_depth(id, k);

@@ -61,6 +61,14 @@ namespace mer::backend {
 /// How keyframe depth enters the optimization.
 inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", "metric", "scaled"};
 
+/// backend.depth_edges in effect (`auto` resolved by the depth's scale).
+enum class DepthEdgeMode : std::uint8_t { kOff, kMetric, kScaled };
+/// "off", "metric" or "scaled".
+std::string_view to_string(DepthEdgeMode m);
+/// Parses backend.depth_edges (validated against kDepthEdgeModes): `auto` is metric when the
+/// keyframe depth is metric (rgbd mode), off otherwise.
+DepthEdgeMode parse_depth_edges(std::string_view s, bool metric_depth);
+
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
   bool enabled = true;                 ///< run local bundle adjustment after each keyframe
@@ -219,7 +227,7 @@ class LocalBundleAdjuster {
   LocalBundleAdjuster& operator=(const LocalBundleAdjuster&) = delete;
 
   /// The 3D-3D edge mode in effect (`auto` resolved): "off", "metric" or "scaled".
-  const std::string& depth_edge_mode() const { return depth_mode_; }
+  std::string_view depth_edge_mode() const { return to_string(depth_mode_); }
 
   /// Optimizes the window around `kf` with intrinsics `K`. Takes the map's writer lock itself
   /// (the caller must not hold it).
@@ -269,9 +277,9 @@ class LocalBundleAdjuster {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   bool deterministic_;
-  std::string depth_mode_;
-  map::KeyframeId last_kf_ = map::kNoId;  ///< the keyframe the previous spin_once was for
-  std::int64_t last_kf_t_ns_ = 0;         ///< its time (a reused slot has another)
+  DepthEdgeMode depth_mode_ = DepthEdgeMode::kOff;  // backend.depth_edges, `auto` resolved
+  map::KeyframeId last_kf_ = map::kNoId;            ///< the keyframe the previous spin_once was for
+  std::int64_t last_kf_t_ns_ = 0;                   ///< its time (a reused slot has another)
   std::atomic<bool> abort_{false};
   std::atomic<int> iterations_{0};
   LocalBaTotals totals_;
