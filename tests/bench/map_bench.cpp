@@ -58,7 +58,7 @@ struct IndoorScene {
   }
 };
 
-void BM_QueryVisibleIndoor(benchmark::State& state) {
+void bm_query_visible_indoor(benchmark::State& state) {
   static IndoorScene scene;
   const mer::geometry::Pinhole K{500, 500, 320, 240};
   std::vector<map::PointId> out(20000);
@@ -73,7 +73,7 @@ void BM_QueryVisibleIndoor(benchmark::State& state) {
   state.counters["ids_per_query"] =
       benchmark::Counter(returned, benchmark::Counter::kAvgIterations);
 }
-BENCHMARK(BM_QueryVisibleIndoor)->Unit(benchmark::kMicrosecond);
+BENCHMARK(bm_query_visible_indoor)->Unit(benchmark::kMicrosecond);
 
 }  // namespace
 

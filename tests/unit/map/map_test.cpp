@@ -928,7 +928,7 @@ TEST(Map, QueryVisibleIsATightSupersetOnAnIndoorScene) {
       "returned / visible = %.3f\n",
       median, p95, times.back(), static_cast<double>(total) / 200.0,
       static_cast<double>(total) / static_cast<double>(visible));
-  // (Its time is measured by tests/bench/map_bench.cpp, BM_QueryVisibleIndoor.)
+  // (Its time is measured by tests/bench/map_bench.cpp, bm_query_visible_indoor.)
   EXPECT_LT(static_cast<double>(total) / static_cast<double>(visible), 1.6);
 }
 
