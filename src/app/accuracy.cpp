@@ -198,7 +198,8 @@ EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineSt
   return rep;
 }
 
-Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames) {
+Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames,
+                          bool merged_frames) {
   std::ifstream in(path);
   if (!in) return input_error("cannot read '" + path + "'");
   constexpr std::size_t kFields = 9;  // t kf_t tx ty tz qx qy qz qw
@@ -218,10 +219,13 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
       return bad("expected " + std::to_string(kFields) + " fields, got " +
                  std::to_string(tok.size()));
     }
-    if (k >= frames.size()) return bad("more frames than trajectory.txt has");
-    pipeline::AnchoredFrame& f = frames[k++];
     std::int64_t t_ns = 0;
     if (!hal::parse_seconds_ns(tok[0], t_ns)) return bad("bad timestamp '" + tok[0] + "'");
+    // Frames of a segment merged into trajectory.txt's after the run have no anchor line:
+    // they stay as tracked (moved into its frame by the merge).
+    while (k < frames.size() && frames[k].t_ns < t_ns && merged_frames) ++k;
+    if (k >= frames.size()) return bad("more frames than trajectory.txt has");
+    pipeline::AnchoredFrame& f = frames[k++];
     if (t_ns != f.t_ns) return bad("timestamp " + tok[0] + " is not trajectory.txt's next");
     f.has_anchor = tok[1] != "-";
     if (f.has_anchor && !hal::parse_seconds_ns(tok[1], f.anchor_t_ns)) {
@@ -245,7 +249,7 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
       return bad("frame without keyframe does not repeat its trajectory.txt pose");
     }
   }
-  if (k != frames.size()) {
+  if (k != frames.size() && !merged_frames) {
     return input_error("'" + path + "': " + std::to_string(k) + " frames, trajectory.txt has " +
                        std::to_string(frames.size()));
   }
@@ -254,7 +258,7 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
 
 Status write_final_trajectory(const std::string& dir,
                               std::span<const pipeline::FinalKeyframePose> keyframes,
-                              pipeline::FinalTrajectoryStats& stats) {
+                              pipeline::FinalTrajectoryStats& stats, bool merged_frames) {
   const std::filesystem::path d(dir);
   stats = pipeline::FinalTrajectoryStats{};
   std::error_code ec;
@@ -271,7 +275,8 @@ Status write_final_trajectory(const std::string& dir,
     frames[i].t_ns = est.value().poses[i].t_ns;
     frames[i].T_w_c = est.value().poses[i].T_w_c;
   }
-  if (Status s = read_frame_anchors((d / "frame_anchors.txt").string(), frames); !s.is_ok()) {
+  if (Status s = read_frame_anchors((d / "frame_anchors.txt").string(), frames, merged_frames);
+      !s.is_ok()) {
     return s;
   }
   const std::vector<StampedPose> poses = pipeline::reanchor_frames(frames, keyframes, stats);

@@ -85,14 +85,18 @@ EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineSt
 /// Reads `path` (frame_anchors.txt: `t kf_t tx ty tz qx qy qz qw`, kf_t `-` for a frame
 /// without anchor) into `frames`, whose t_ns and T_w_c (from trajectory.txt) are set:
 /// line k must carry frame k's timestamp. Errors name the file and line.
-Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames);
+/// `merged_frames`: trajectory.txt also holds frames of segments merged into it after the run
+/// (no anchor line: kept as tracked).
+Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames,
+                          bool merged_frames = false);
 
 /// Writes `dir`/trajectory_final.txt: every pose of `dir`/trajectory.txt re-anchored to
 /// `keyframes` (the final map, Pipeline::final_keyframe_poses) through
 /// `dir`/frame_anchors.txt (pipeline/final_trajectory.h). Written atomically.
+/// `merged_frames`: as read_frame_anchors.
 Status write_final_trajectory(const std::string& dir,
                               std::span<const pipeline::FinalKeyframePose> keyframes,
-                              pipeline::FinalTrajectoryStats& stats);
+                              pipeline::FinalTrajectoryStats& stats, bool merged_frames = false);
 
 /// --gt-check, after every output is written: loads `dir`/groundtruth.txt, runs the
 /// ground-truth check (eval/groundtruth_check.h; it changes the map) on the pipeline's

@@ -130,9 +130,17 @@ int main(int argc, char** argv) {
           app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(), g.trajectory));
     }
     info.events = app::audit_events(args.output_dir, pipe.stats(), info.accuracy_segments);
-    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
+    // The final map re-anchors the frames of segment 0 (frame_anchors.txt): only when that
+    // is trajectory.txt's segment.
+    bool main_is_0 = true;
+    bool merged = false;
+    for (const pipeline::SegmentStats& g : pipe.stats().segments) {
+      if (g.main && g.id != 0) main_is_0 = false;
+      if (g.merged_into >= 0) merged = true;
+    }
+    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0 && main_is_0) {
       if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
-                                                 info.final_trajectory);
+                                                 info.final_trajectory, merged);
           w.is_ok()) {
         info.final_trajectory_written = true;
         info.accuracy_final = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),

@@ -114,14 +114,16 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     }
   };
   accuracy_json("accuracy", info.accuracy);
-  // Map segments: each in its own world frame until merged (none is merged yet).
+  // Map segments: each in its own world frame until merged into another (merged_into, -1:
+  // never); `trajectory` is the file holding its frames, trajectory.txt for the main one.
   j << "  \"segments\": [";
   for (std::size_t i = 0; i < st.segments.size(); ++i) {
     const pipeline::SegmentStats& g = st.segments[i];
     j << (i ? ", " : "") << "{\"id\": " << g.id << ", \"frames\": " << g.frames
       << ", \"keyframes\": " << g.keyframes << ", \"first_seq\": " << g.first_seq
       << ", \"last_seq\": " << g.last_seq << ", \"trajectory\": " << json_string(g.trajectory)
-      << ", \"merged_into\": -1";  // -1: not merged (no merge yet)
+      << ", \"main\": " << (g.main ? "true" : "false") << ", \"merged_into\": " << g.merged_into;
+    if (g.merged_into >= 0) j << ", \"merged_at_seq\": " << g.merged_at_seq;
     if (i < info.accuracy_segments.size() && info.accuracy_segments[i].available) {
       const AccuracyReport& a = info.accuracy_segments[i];
       j << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
@@ -255,8 +257,9 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   const loop::LoopTotals& lp = st.loop;
   j << "  \"loop\": {\"keyframes_checked\": " << lp.keyframes_checked
     << ", \"candidates_checked\": " << lp.candidates_checked
-    << ", \"loops_closed\": " << lp.loops_closed << ", \"merged_points\": " << lp.merged_points
-    << ", \"max_ms\": " << num(lp.max_ms) << ", \"max_full_ba_ms\": " << num(lp.max_full_ba_ms)
+    << ", \"loops_closed\": " << lp.loops_closed << ", \"segments_merged\": " << lp.segments_merged
+    << ", \"merged_points\": " << lp.merged_points << ", \"max_ms\": " << num(lp.max_ms)
+    << ", \"max_full_ba_ms\": " << num(lp.max_full_ba_ms)
     << ", \"last_loop_seq\": " << lp.last_loop.loop_seq
     << ", \"last_inliers\": " << lp.last_loop.inliers
     << ", \"last_scale\": " << num(lp.last_loop.scale)
@@ -367,9 +370,14 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << "  ATE: " << info.accuracy.note << "\n";
   }
   if (st.segments.size() > 1 || (st.segments.size() == 1 && st.segments[0].id != 0)) {
-    os << "  map segments (each in its own world frame):";
+    os << "  map segments:";
     for (const pipeline::SegmentStats& g : st.segments) {
-      os << " " << g.id << ": " << g.frames << " frames (" << g.trajectory << ")";
+      os << " " << g.id << ": " << g.frames << " frames";
+      if (g.merged_into >= 0) {
+        os << " (merged into " << g.merged_into << " at frame " << g.merged_at_seq << ")";
+      } else {
+        os << " (" << g.trajectory << ")";
+      }
     }
     os << "\n";
   }

@@ -543,10 +543,28 @@ void KeyframeBuilder::align_new_observations(const geometry::Pinhole& K, Keyfram
   }
 }
 
-KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& job) {
+const map::KeyframeJob& KeyframeBuilder::resolve_merged_segment(const map::KeyframeJob& tracked) {
+  geometry::Sim3d S;
+  const std::uint16_t segment = map_.merged_segment(tracked.segment, S);
+  if (segment == tracked.segment) return tracked;
+  // Tracked in a segment merged since: its poses move into the frame of the segment it joined
+  // (the buffers are reused from the last time; a copy of the image shares its pixels).
+  merged_job_ = tracked;
+  merged_job_.segment = segment;
+  merged_job_.T_w_c = geometry::apply_to_pose(S, tracked.T_w_c);
+  for (int r = 0; r < tracked.num_recent; ++r) {
+    merged_job_.recent_T_w_c[static_cast<std::size_t>(r)] =
+        geometry::apply_to_pose(S, tracked.recent_T_w_c[static_cast<std::size_t>(r)]);
+  }
+  ++totals_.merged_segment_jobs;
+  return merged_job_;
+}
+
+KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) {
   // The whole pass is one writer section: depth inference reads writer-side state
   // (observations of the neighbours' points) and the insertion must see it unchanged.
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
+  const map::KeyframeJob& job = resolve_merged_segment(tracked);
   const auto t0 = std::chrono::steady_clock::now();
   KeyframeBuildReport rep;
   const auto n = static_cast<std::size_t>(job.num_keypoints);

@@ -64,8 +64,9 @@ struct KeyframeBuildTotals {
   std::uint64_t align_refused_residual = 0;  ///< not converged or above align_max_rms
   std::uint64_t align_refused_shift = 0;     ///< moved farther than align_max_shift_px
   std::uint64_t depth_valid = 0;
-  std::uint64_t depth_missing = 0;  ///< keyframes the backend had no input for (no depth map)
-  std::uint64_t depth_errors = 0;   ///< keyframes whose depth inference failed otherwise
+  std::uint64_t depth_missing = 0;        ///< keyframes the backend had no input for (no depth map)
+  std::uint64_t depth_errors = 0;         ///< keyframes whose depth inference failed otherwise
+  std::uint64_t merged_segment_jobs = 0;  ///< tracked in a segment merged since: moved first
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -88,7 +89,7 @@ class KeyframeBuilder {
   Status init();
 
   /// Creates one keyframe. Takes the map's writer lock (the caller must not hold it).
-  KeyframeBuildReport spin_once(const map::KeyframeJob& job);
+  KeyframeBuildReport spin_once(const map::KeyframeJob& tracked);
 
   const KeyframeBuildTotals& totals() const { return totals_; }
   std::string_view backend_name() const { return backend_ ? backend_->name() : "none"; }
@@ -99,6 +100,9 @@ class KeyframeBuilder {
   }
 
  private:
+  /// `tracked`, or when its segment merged into another since it was tracked, a copy (merged_job_)
+  /// in the frame and segment it joined. Writer-lock holders only.
+  const map::KeyframeJob& resolve_merged_segment(const map::KeyframeJob& tracked);
   /// The newest live keyframe of `segment` (kNoId when it has none yet).
   map::KeyframeId newest_in_segment(std::uint16_t segment) const;
   void pick_neighbours(const map::KeyframeJob& job);
@@ -155,6 +159,7 @@ class KeyframeBuilder {
   bool fit_depth_ = false;  // refinement fits metric keyframe depth
   std::unique_ptr<DepthInference> backend_;
   KeyframeBuildTotals totals_;
+  map::KeyframeJob merged_job_;  // resolve_merged_segment's copy (buffers reused)
   // scratch
   std::vector<std::uint32_t> neighbour_ids_;
   std::vector<std::vector<std::uint32_t>> neighbour_points_;

@@ -1191,28 +1191,59 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
 void Tracker::follow_map_correction() {
   const std::uint32_t total = map_.correction_count();
   if (total == correction_count_seen_ && segment_ == correction_segment_) return;
-  geometry::Sim3d S;
-  std::uint32_t count = 0;
-  if (!map_.read_correction(segment_, S, count)) return;  // retried at the next frame
-  correction_count_seen_ = total;
-  if (segment_ != correction_segment_) {
-    // Tracking is in another segment since the last frame (a new one, or a return to an
-    // earlier one): its pose came from that segment's map as it is now, corrections included.
-    correction_segment_ = segment_;
-    correction_seen_ = S;
-    correction_segment_count_ = count;
-    return;
+  // A merge moves the tracked segment into another one's frame and publishes that as a
+  // correction of it: follow the correction, then the segment it joined (bounded: each merge
+  // joins a segment that has not merged itself).
+  for (std::uint32_t hop = 0; hop < map::kMaxSegments; ++hop) {
+    geometry::Sim3d S;
+    std::uint32_t count = 0;
+    if (!map_.read_correction(segment_, S, count)) return;  // retried at the next frame
+    correction_count_seen_ = total;
+    if (segment_ != correction_segment_) {
+      // Tracking is in another segment since the last frame (a new one, or a return to an
+      // earlier one): its pose came from that segment's map as it is now, corrections
+      // included.
+      correction_segment_ = segment_;
+      correction_seen_ = S;
+      correction_segment_count_ = count;
+      return;
+    }
+    if (count != correction_segment_count_) {
+      // The part published since the last frame: S * seen^-1.
+      apply_correction(S * correction_seen_.inverse());
+      correction_seen_ = S;
+      correction_segment_count_ = count;
+    }
+    map::SegmentMerge m;
+    if (!map_.segment_merge(segment_, m) || count < m.from_count) return;
+    // Merged (and its move followed): the frame is now that of `into`, as it was at the merge.
+    MER_LOG_INFO("tracking follows the merge of map segment %u into segment %u", unsigned{segment_},
+                 unsigned{m.into});
+    if (last_tracked_segment_ == segment_) {
+      last_tracked_segment_ = m.into;
+    }
+    if (candidate_segment_before_ == segment_) candidate_segment_before_ = m.into;
+    segment_ = m.into;
+    correction_segment_ = m.into;
+    correction_seen_ = m.into_correction;
+    correction_segment_count_ = m.into_count;
+    ++counters_.segment_merges_followed;
   }
-  if (count == correction_segment_count_) return;  // only other segments were corrected
-  // The part published since the last frame: S * seen^-1.
-  const geometry::Sim3d D = S * correction_seen_.inverse();
-  correction_seen_ = S;
-  correction_segment_count_ = count;
+}
+
+void Tracker::apply_correction(const geometry::Sim3d& D) {
   if (have_pose_) T_c_w_ = geometry::apply_to_pose(D, T_c_w_.inverse()).inverse();
   last_T_w_c_ = geometry::apply_to_pose(D, last_T_w_c_);
   for (SE3d& T : recent_T_w_c_) T = geometry::apply_to_pose(D, T);
   velocity_.translation() *= D.s;
   median_depth_ *= D.s;
+  if (last_tracked_segment_ == segment_) {
+    // The motion bound's reference moves with the map (velocities in its units).
+    last_tracked_T_c_w_ = geometry::apply_to_pose(D, last_tracked_T_c_w_.inverse()).inverse();
+    last_tracked_velocity_ = D.s * (D.R * last_tracked_velocity_);
+    last_tracked_omega_ = D.R * last_tracked_omega_;
+    last_tracked_median_depth_ *= D.s;
+  }
   MER_LOG_INFO("tracking follows a map correction of segment %u (scale %.4f, shift %.3f)",
                unsigned{segment_}, D.s, D.t.norm());
 }

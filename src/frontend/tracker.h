@@ -101,6 +101,7 @@ struct TrackerCounters {
   std::uint64_t max_lost_frames = 0;          ///< longest lost spell, frames
   std::uint64_t new_segments = 0;             ///< map segments started after a lost spell
   std::uint64_t segment_returns = 0;  ///< relocalized into another segment than the one tracked
+  std::uint64_t segment_merges_followed = 0;    ///< the tracked segment merged into another one
   std::uint64_t relocalization_trusted = 0;     ///< poses within the motion bound, trusted at once
   std::uint64_t relocalization_candidates = 0;  ///< poses that needed confirmation
   std::uint64_t relocalization_confirmed = 0;   ///< of those, confirmed
@@ -184,6 +185,8 @@ class Tracker {
   /// corrections published since the last frame (loop closure), so that the prediction
   /// lands where the corrected map is.
   void follow_map_correction();
+  /// Moves every pose the tracker keeps in the tracked segment by the world correction D.
+  void apply_correction(const geometry::Sim3d& D);
   /// Fills r's anchor: its pose relative to the map's newest keyframe when that is of the
   /// tracked segment, else to the last keyframe of the segment anchored to (after a return to
   /// an earlier segment: the keyframe relocalized against); none when neither is live.

@@ -212,10 +212,14 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   const std::int64_t t_kf = map_.keyframe_t_ns(kf);
   const auto min_gap_ns = static_cast<std::int64_t>(opts_.min_time_gap_s * kNsPerS);
   for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
-    // Another segment's keyframes are in an unrelated world frame: a match with one is a
-    // merge of two segments, not a loop within one.
-    if (id == kf || !map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment ||
-        map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial ||
+    if (id == kf || !map_.keyframe_is_live(id)) continue;
+    // Another segment's keyframes are in an unrelated world frame: a match with one merges
+    // the two segments (merge_segments), whenever they were made.
+    if (map_.keyframe_segment(id) != segment) {
+      if (opts_.merge_segments) scored.push_back(Candidate{false, key_scores[id], id});
+      continue;
+    }
+    if (map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial ||
         map_.keyframe_t_ns(id) + min_gap_ns > t_kf) {
       continue;
     }
@@ -308,8 +312,10 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     }
     if (inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
-    // travelled since the old one (perceptual aliasing: a similar place far away).
-    const double drift = implied_drift(kf, cand, S_cand_new);
+    // travelled since the old one (perceptual aliasing: a similar place far away). Another
+    // segment's frame is unrelated: no path, no bound (the checks below still apply).
+    const bool merge = map_.keyframe_segment(cand) != segment;
+    const double drift = merge ? 0.0 : implied_drift(kf, cand, S_cand_new);
     if (drift > opts_.max_drift_fraction) {
       MER_LOG_DEBUG("loop: refused, it implies %.1f %% drift", 100.0 * drift);
       ++rep.refused_drift;
@@ -372,6 +378,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.drift = best.drift;
       rep.connected = best.connected;
       rep.found_usual = best.usual;
+      if (map_.keyframe_segment(cand) != segment) merge_segments(kf, cand, best.sim, rep);
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
       rep.closed = true;
     }
@@ -393,6 +400,14 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.full_ba_ms = elapsed_ms(t1);
     }
     ++totals_.loops_closed;
+    if (rep.merged_from != map::kNoSegment) {
+      ++totals_.segments_merged;
+      if (totals_.merges.size() < kMaxLoopEvents) {
+        totals_.merges.push_back(SegmentMergeEvent{
+            map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.merged_from,
+            rep.merged_into, rep.merge_keyframes, rep.inliers, rep.merge_similarity});
+      }
+    }
     totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
     totals_.last_loop = rep;
     if (totals_.closures.size() < kMaxLoopEvents) {
@@ -838,14 +853,47 @@ int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const S
   return static_cast<int>(matches_.size()) - static_cast<int>(before);
 }
 
+void LoopCloser::merge_segments(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
+                                LoopReport& rep) {
+  const std::uint16_t seg_new = map_.keyframe_segment(kf);
+  const std::uint16_t seg_cand = map_.keyframe_segment(cand);
+  SE3d T_w_new;
+  SE3d T_w_cand;
+  if (seg_new == seg_cand || !map_.keyframe_pose(kf, T_w_new) ||
+      !map_.keyframe_pose(cand, T_w_cand)) {
+    return;
+  }
+  // The new keyframe's world -> the candidate's: through the two cameras the match relates.
+  const Sim3d S_wcand_wnew =
+      Sim3d::from_se3(T_w_cand) * S_cand_new * Sim3d::from_se3(T_w_new).inverse();
+  // The older segment (the smaller id) keeps its frame; the newer one moves into it.
+  const bool new_moves = seg_new > seg_cand;
+  const std::uint16_t from = new_moves ? seg_new : seg_cand;
+  const std::uint16_t into = new_moves ? seg_cand : seg_new;
+  const Sim3d S_into_from = new_moves ? S_wcand_wnew : S_wcand_wnew.inverse();
+  const std::uint32_t moved = map_.merge_segment(from, into, S_into_from);
+  if (moved == 0) return;
+  rep.merged_from = from;
+  rep.merged_into = into;
+  rep.merge_keyframes = static_cast<int>(moved);
+  rep.merge_similarity = S_into_from;
+  MER_LOG_INFO("map segment %u merged into segment %u (%u keyframes, scale %.4f)", unsigned{from},
+               unsigned{into}, moved, S_into_from.s);
+}
+
 int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
                         const geometry::Pinhole& K, LoopReport& rep) {
-  // Nodes: every live keyframe, in creation order.
+  // Nodes: every live keyframe of the loop's segment, in creation order (another segment's
+  // keyframes are in another frame: a correction of this one must not drag them).
+  const std::uint16_t segment = map_.keyframe_segment(cand);
   std::vector<GraphNode> nodes;
   std::vector<int> node_of(map_.num_keyframes(), -1);
   for (map::KeyframeId id = 0; id < map_.num_keyframes(); ++id) {
     SE3d T;
-    if (!map_.keyframe_is_live(id) || !map_.keyframe_pose(id, T)) continue;
+    if (!map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment ||
+        !map_.keyframe_pose(id, T)) {
+      continue;
+    }
     GraphNode g;
     g.id = id;
     g.serial = map_.keyframe_serial(id);

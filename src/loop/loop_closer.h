@@ -78,6 +78,7 @@ struct LoopOptions {
   bool exclude_connected = false;    ///< keyframes sharing points with the new one: no candidate
   double min_time_gap_s = 3.0;       ///< candidates were made at least this long before
   double min_found_fraction = 0.3;   ///< share found both ways, x the usual one (0: off)
+  bool merge_segments = true;        ///< another segment's keyframes are candidates: merges
   int seed = 1;                      ///< RANSAC sampling seed
 
   template <class V>
@@ -155,6 +156,11 @@ struct LoopOptions {
             "covisible older keyframe; a look-alike place matches its copy but not the "
             "surroundings (0: not checked)",
             options::Range<double>{0.0, 1.0});
+    v.field("merge_segments", merge_segments,
+            "keyframes of other map segments (started after a lost spell) are candidates too, "
+            "without the time and keyframe gaps: a loop onto one moves the newer segment into "
+            "the older one's frame by the loop's similarity and joins the two (the drift bound "
+            "does not apply between frames; the other checks do)");
     v.field("consistent_checks", consistent_checks,
             "keyframes in a row (at most 3 apart) whose geometric check must find the same old "
             "place (the candidate or a keyframe covisible with it) before the loop is corrected",
@@ -191,6 +197,22 @@ struct LoopReport {
   int fused_observations = 0;  ///< old points observed by window keyframes through fusion
   double ms = 0.0;             ///< wall time, full BA excluded
   double full_ba_ms = 0.0;
+  std::uint16_t merged_from = map::kNoSegment;  ///< the loop joined this segment ...
+  std::uint16_t merged_into = map::kNoSegment;  ///< ... to this one (merge_segments)
+  int merge_keyframes = 0;                      ///< keyframes the merge moved
+  geometry::Sim3d merge_similarity;             ///< world of merged_from -> world of merged_into
+};
+
+/// Two map segments joined by a loop between them (merge_segments).
+struct SegmentMergeEvent {
+  std::uint64_t seq = 0;        ///< frame of the keyframe that found the other segment
+  std::int64_t t_ns = 0;        ///< its timestamp
+  std::uint64_t loop_seq = 0;   ///< frame of the keyframe it matched
+  std::uint16_t from = 0;       ///< the segment that moved (the newer one) ...
+  std::uint16_t into = 0;       ///< ... into this one's frame
+  int keyframes = 0;            ///< keyframes moved
+  int inliers = 0;              ///< matches the similarity explains
+  geometry::Sim3d S_into_from;  ///< world of `from` -> world of `into`
 };
 
 /// A closed loop, for ground-truth audits: the two keyframes and the similarity the loop
@@ -235,6 +257,8 @@ struct LoopTotals {
   LoopRejections rejected;                 ///< refusals by reason
   std::uint64_t excluded_connected = 0;    ///< candidates skipped: they share points (counted
                                            ///< per keyframe checked)
+  std::uint64_t segments_merged = 0;       ///< loops that joined two segments (of loops_closed)
+  std::vector<SegmentMergeEvent> merges;   ///< every merge (at most kMaxLoopEvents)
 };
 
 /// Loop-closure stage: `spin_once(new keyframe) -> LoopReport`.
@@ -321,6 +345,10 @@ class LoopCloser {
   /// fuse_radius_px sigmas; appended to matches_. Returns how many.
   int guided_matches(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
                      const geometry::Pinhole& K);
+  /// kf and cand are of different segments: moves the newer segment into the older one's
+  /// frame (Map::merge_segment) by the similarity between the two cameras; rep says which.
+  void merge_segments(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+                      LoopReport& rep);
   int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
               const geometry::Pinhole& K, LoopReport& rep);
   float sigma2(const features::Keypoint& k) const;

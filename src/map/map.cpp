@@ -63,6 +63,8 @@ Map::Map(const MapOptions& opts)
   const std::size_t n_kp = std::size_t{max_kf_} * max_kp_;
   for (std::size_t i = 0; i < n_kp; ++i) kf_points_[i].store(kNoId, std::memory_order_relaxed);
   std::fill_n(point_cell_.get(), max_pts_, kNoCell);
+  for (std::uint32_t i = 0; i < kMaxSegments; ++i)
+    merged_into_[i].store(kNoSegment, std::memory_order_relaxed);
 }
 
 // ---- writer ------------------------------------------------------------------------------
@@ -178,6 +180,79 @@ void Map::publish_correction(std::uint16_t segment, const geometry::Sim3d& S_new
   correction_count_.store(count, std::memory_order_release);
 }
 
+std::uint32_t Map::merge_segment(std::uint16_t from, std::uint16_t into,
+                                 const geometry::Sim3d& S_into_from) {
+  if (from >= kMaxSegments || into >= kMaxSegments || from == into ||
+      merged_into_[from].load(std::memory_order_relaxed) != kNoSegment ||
+      merged_into_[into].load(std::memory_order_relaxed) != kNoSegment ||
+      !S_into_from.R.allFinite() || !S_into_from.t.allFinite() || !std::isfinite(S_into_from.s) ||
+      S_into_from.s <= 0.0) {
+    return 0;
+  }
+  const geometry::Sim3d& S = S_into_from;
+  const std::uint32_t nk = num_keyframes_.load(std::memory_order_relaxed);
+  std::uint32_t moved = 0;
+  for (KeyframeId kf = 0; kf < nk; ++kf) {
+    if (!own_keyframe(kf) || kfs_[kf].segment.load(std::memory_order_relaxed) != from) continue;
+    double scale = 1.0;
+    SE3d T_w_c;
+    if (!keyframe_pose(kf, T_w_c, &scale)) T_w_c = own_pose(kf);
+    write_pose(kf, (S * geometry::Sim3d::from_se3(T_w_c)).rigid(), scale);
+    if (S.s != 1.0) {
+      const std::size_t base = kp_index(kf, 0);
+      for (std::uint32_t k = 0; k < kfs_[kf].num_keypoints; ++k) {
+        std::atomic<float>& d = kf_depth_[base + k];
+        d.store(static_cast<float>(d.load(std::memory_order_relaxed) * S.s),
+                std::memory_order_relaxed);
+      }
+    }
+    kfs_[kf].segment.store(into, std::memory_order_relaxed);
+    ++moved;
+  }
+  const std::uint32_t np = num_points_.load(std::memory_order_relaxed);
+  for (PointId p = 0; p < np; ++p) {
+    if (!own_point(p) || pt_segment_[p] != from) continue;
+    pt_segment_[p] = into;
+    const Eigen::Vector3d p_w = S * own_position(p);
+    write_position(p, p_w);
+    const CellKey key = grid_.key_of(p_w, into);
+    point_cell_[p] = grid_.move(p, point_cell_[p], key) ? key : kNoCell;
+    update_point(p);  // the distance range, in the units of `into`
+  }
+  SegmentMerge& m = merges_[from];
+  m.into = into;
+  m.S_into_from = S;
+  m.into_correction = correction_own_[into];
+  m.into_count = static_cast<std::uint32_t>(
+      load_payload(correction_[std::size_t{into} * kCorrectionWords + kPoseWords]));
+  m.from_count = static_cast<std::uint32_t>(
+                     load_payload(correction_[std::size_t{from} * kCorrectionWords + kPoseWords])) +
+                 1U;
+  merged_into_[from].store(into, std::memory_order_release);
+  publish_correction(from, S);
+  return moved;
+}
+
+bool Map::segment_merge(std::uint16_t segment, SegmentMerge& out) const noexcept {
+  if (segment >= kMaxSegments ||
+      merged_into_[segment].load(std::memory_order_acquire) == kNoSegment)
+    return false;
+  out = merges_[segment];
+  return true;
+}
+
+std::uint16_t Map::merged_segment(std::uint16_t segment,
+                                  geometry::Sim3d& S_final_segment) const noexcept {
+  S_final_segment = geometry::Sim3d{};
+  SegmentMerge m;
+  // Each merge joins a segment into one not merged yet, so the chain ends within kMaxSegments.
+  for (std::uint32_t hops = 0; hops < kMaxSegments && segment_merge(segment, m); ++hops) {
+    S_final_segment = m.S_into_from * S_final_segment;
+    segment = m.into;
+  }
+  return segment;
+}
+
 std::uint32_t Map::correction_count() const noexcept {
   return correction_count_.load(std::memory_order_acquire);
 }
@@ -274,7 +349,7 @@ Result<KeyframeId> Map::add_keyframe(const KeyframeInput& in) {
   KeyframeSlot& s = kfs_[id];
   s.seq = in.seq;
   s.t_ns = in.t_ns;
-  s.segment = in.segment;
+  s.segment.store(in.segment, std::memory_order_relaxed);
   s.num_keypoints = static_cast<std::uint32_t>(n);
   const std::size_t base = kp_index(id, 0);
   std::copy(in.keypoints.begin(), in.keypoints.end(), &kf_keypoints_[base]);
@@ -327,7 +402,7 @@ Result<PointId> Map::add_point(const Eigen::Vector3d& p_w, KeyframeId ref_kf,
   pt_visible_[id].store(1, std::memory_order_relaxed);  // the creating keyframe saw it
   pt_found_[id].store(1, std::memory_order_relaxed);
   pt_serial_[id] = kf_serial_next_;
-  pt_segment_[id] = kfs_[ref_kf].segment;
+  pt_segment_[id] = kfs_[ref_kf].segment.load(std::memory_order_relaxed);
   obs_[std::size_t{id} * max_obs_] = Observation::make(ref_kf, ref_kp);
   obs_count_[id] = 1;
   write_point_state(id, load_own(points_[id].state) | kLiveBit);
@@ -749,7 +824,7 @@ std::uint64_t Map::keyframe_seq(KeyframeId kf) const noexcept {
 }
 
 std::uint16_t Map::keyframe_segment(KeyframeId kf) const noexcept {
-  return live_keyframe(kf) ? kfs_[kf].segment : kNoSegment;
+  return live_keyframe(kf) ? kfs_[kf].segment.load(std::memory_order_relaxed) : kNoSegment;
 }
 
 PointId Map::keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept {

@@ -149,6 +149,15 @@ struct KeyframeInput {
   std::uint16_t segment = 0;  ///< map segment (frontend: a new one after a long lost spell)
 };
 
+/// A map segment that joined another (Map::merge_segment): immutable once recorded.
+struct SegmentMerge {
+  std::uint16_t into = kNoSegment;  ///< the segment it joined
+  geometry::Sim3d S_into_from;      ///< its world frame -> that of `into` (map units scale)
+  geometry::Sim3d into_correction;  ///< the cumulative correction of `into` at the merge
+  std::uint32_t into_count = 0;     ///< and the number of corrections of `into` it includes
+  std::uint32_t from_count = 0;     ///< corrections of the merged segment, the merge included
+};
+
 /// A consistent snapshot of a map point.
 struct PointView {
   Eigen::Vector3d p_w = Eigen::Vector3d::Zero();     ///< world position
@@ -249,6 +258,16 @@ class Map {
   /// tracker's last pose) move them by the part they missed. Ignored for a segment id of
   /// kMaxSegments or more.
   void publish_correction(std::uint16_t segment, const geometry::Sim3d& S_new_old) noexcept;
+  /// Joins segment `from` to segment `into`: every keyframe of `from` is moved into the
+  /// world frame of `into` by S_into_from (keyframe depths and map units scale by its s),
+  /// every point of `from` moves with it (its cell re-keyed, its distance range refreshed)
+  /// and both are relabelled `into`. The merge is recorded (segment_merge) and published as a
+  /// correction of `from` (publish_correction), so a reader holding a pose of `from` moves it
+  /// into the frame of `into` and then follows `into`. Returns the keyframes moved; 0 and
+  /// nothing done for a segment id of kMaxSegments or more, from == into, a segment already
+  /// merged, or a non-finite similarity.
+  std::uint32_t merge_segment(std::uint16_t from, std::uint16_t into,
+                              const geometry::Sim3d& S_into_from);
   /// Sets the depth / confidence of one keypoint (depth refinement after publication).
   void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
   /// Frees a point: not live (generation incremented), removed from its cell, its keypoint
@@ -345,6 +364,13 @@ class Map {
   /// keyframes and points share one world frame, unrelated to another segment's until the two
   /// are merged; its points are those whose reference keyframe is in it.
   std::uint16_t keyframe_segment(KeyframeId kf) const noexcept;
+  /// The merge of `segment` into another (acquire; any thread); false when it never merged
+  /// (or the id is out of range). Follow `into` for later merges.
+  bool segment_merge(std::uint16_t segment, SegmentMerge& out) const noexcept;
+  /// The segment `segment` ended up in after every merge (itself when it never merged) and
+  /// the similarity from its world frame to that one's (composed along the merges).
+  std::uint16_t merged_segment(std::uint16_t segment,
+                               geometry::Sim3d& S_final_segment) const noexcept;
   /// Point associated with keypoint kp of kf, kNoId if none.
   PointId keyframe_point(KeyframeId kf, std::uint32_t kp) const noexcept;
   /// Depth (camera z, map units; 0: unknown) of keypoint kp of kf.
@@ -421,8 +447,8 @@ class Map {
     std::uint64_t seq = 0;  // immutable while live
     std::int64_t t_ns = 0;
     std::uint32_t num_keypoints = 0;
-    std::uint16_t segment = 0;
-    std::atomic<std::uint32_t> state{0};  // generation << 1 | live
+    std::atomic<std::uint16_t> segment{0};  // relabelled by merge_segment (relaxed)
+    std::atomic<std::uint32_t> state{0};    // generation << 1 | live
     SeqLock pose_lock;
     std::atomic<std::uint64_t> pose[kPoseWords] = {};
     SeqLock covis_lock;
@@ -538,6 +564,11 @@ class Map {
   std::unique_ptr<std::atomic<std::uint64_t>[]> correction_ =
       std::make_unique<std::atomic<std::uint64_t>[]>(std::size_t{kMaxSegments} * kCorrectionWords);
   std::atomic<std::uint32_t> correction_count_{0};  // all segments
+  // kMaxSegments: the segment each one merged into (kNoSegment: none; release-published after
+  // its record in merges_, which is never written again).
+  std::unique_ptr<std::atomic<std::uint16_t>[]> merged_into_ =
+      std::make_unique<std::atomic<std::uint16_t>[]>(kMaxSegments);
+  std::unique_ptr<SegmentMerge[]> merges_ = std::make_unique<SegmentMerge[]>(kMaxSegments);
   // Writer side copies of each segment's cumulative correction.
   std::unique_ptr<geometry::Sim3d[]> correction_own_ =
       std::make_unique<geometry::Sim3d[]>(kMaxSegments);

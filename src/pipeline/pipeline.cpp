@@ -241,11 +241,28 @@ Status Pipeline::run() {
   camera_.stop();
   stats_.source = camera_.counters();
   Status c = output_.close();
+  if (c.is_ok()) c = join_segments();
   if (config_.pipeline.final_ba && stats_.frames_processed > 0) run_final_ba();
   const Status k = write_final_keyframes();
   finish_stats(t0);
   if (!s.is_ok()) return s;
   return c.is_ok() ? k : c;
+}
+
+Status Pipeline::join_segments() {
+  segment_outputs_.clear();
+  for (std::size_t i = 0; i < segment_stats_.size(); ++i) {
+    if (segment_stats_[i].frames == 0) continue;
+    SegmentOutput g;
+    g.id = static_cast<std::uint16_t>(i);
+    g.frames = segment_stats_[i].frames;
+    segment_outputs_.push_back(g);
+  }
+  std::vector<SegmentMergeRecord> merges;
+  for (const loop::SegmentMergeEvent& e : loop_->totals().merges) {
+    merges.push_back(SegmentMergeRecord{e.from, e.into, e.seq, e.S_into_from});
+  }
+  return join_segment_files(output_dir_, merges, segment_outputs_, main_segment_);
 }
 
 Pipeline::FinishedMap Pipeline::finished_map() {
@@ -302,7 +319,14 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
     if (g.frames == 0) continue;
     g.id = static_cast<std::uint16_t>(i);
     g.keyframes = map_->live_keyframe_poses(g.id).size();
-    g.trajectory = i == 0 ? "trajectory.txt" : "trajectory_segment_" + std::to_string(i) + ".txt";
+    g.trajectory = segment_file_name(g.id, false);
+    for (const SegmentOutput& o : segment_outputs_) {
+      if (o.id != g.id) continue;
+      g.trajectory = o.trajectory;
+      g.merged_into = o.merged_into;
+      g.merged_at_seq = o.merged_at_seq;
+    }
+    g.main = g.id == main_segment_;
     stats_.segments.push_back(g);
   }
   stats_.tracking_allocs_by_state.clear();

@@ -50,6 +50,7 @@
 #include "pipeline/final_trajectory.h"
 #include "pipeline/output_stage.h"
 #include "pipeline/pipeline_options.h"
+#include "pipeline/segment_outputs.h"
 #include "platform/latency_recorder.h"
 #include "platform/thread_table.h"
 
@@ -124,11 +125,15 @@ struct FinalBaStats {
 /// One map segment of a run (summary.json `segments`; tracking.new_segments).
 struct SegmentStats {
   std::uint16_t id = 0;
-  std::uint64_t frames = 0;     ///< frames tracked in it
-  std::uint64_t keyframes = 0;  ///< its keyframes alive in the map at the end
-  std::uint64_t first_seq = 0;  ///< first frame tracked in it
-  std::uint64_t last_seq = 0;   ///< last frame tracked in it
-  std::string trajectory;       ///< file holding its frames (trajectory.txt for segment 0)
+  std::uint64_t frames = 0;         ///< frames tracked in it
+  std::uint64_t keyframes = 0;      ///< its keyframes alive in the map at the end
+  std::uint64_t first_seq = 0;      ///< first frame tracked in it
+  std::uint64_t last_seq = 0;       ///< last frame tracked in it
+  std::string trajectory;           ///< file holding its frames after merging (segment_outputs.h):
+                                    ///< trajectory.txt for the main segment
+  int merged_into = -1;             ///< the segment it merged into (finally), -1: never merged
+  std::uint64_t merged_at_seq = 0;  ///< frame of its merge
+  bool main = false;                ///< the main segment (trajectory.txt)
 };
 
 /// What relocalization did over a run (summary.json `relocalization`).
@@ -242,6 +247,8 @@ class Pipeline {
   void run_final_ba();
   /// Writes `output_dir`/keyframes_final.txt: the live keyframes' poses in the final map
   /// (after local BA and the final BA), in time order.
+  /// Joins the segment trajectory files along the merges of the run (segment_outputs.h).
+  Status join_segments();
   Status write_final_keyframes() const;
   std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
@@ -291,6 +298,8 @@ class Pipeline {
   ThreadAllocs allocs_tracking_{"tracking"};
   std::array<ThreadAllocs, 5> allocs_by_state_{};  ///< per frontend::TrackerState
   std::vector<SegmentStats> segment_stats_;        ///< per segment id (sized at init)
+  std::vector<SegmentOutput> segment_outputs_;     ///< join_segment_files' result
+  std::uint16_t main_segment_ = 0;                 ///< trajectory.txt's segment
   void count_state_allocs(const frontend::TrackingResult& r, std::uint64_t allocations);
   ThreadAllocs allocs_output_{"output"};
   PipelineStats stats_;

@@ -983,4 +983,74 @@ TEST(Map, CorrectionsComposePerSegmentAndAreCounted) {
 }
 
 }  // namespace
+TEST(Map, MergeSegmentMovesKeyframesAndPointsIntoTheOlderFrame) {
+  Map m(small_options());
+  const KfData d = make_kf(8, 1);
+  // The same two cameras and points, seen by segment 0 in its frame and by segment 1 in a
+  // frame that S_1_0 relates to it (another origin, heading and scale).
+  geometry::Sim3d S_1_0;
+  S_1_0.R = Eigen::AngleAxisd(0.7, Eigen::Vector3d(0.2, 1.0, 0.1).normalized()).toRotationMatrix();
+  S_1_0.t = Eigen::Vector3d(4.0, -1.0, 2.5);
+  S_1_0.s = 0.4;
+  const SE3d T0 = SE3d::Identity();
+  SE3d T1 = SE3d::Identity();
+  T1.translation() = Eigen::Vector3d(0.3, 0.0, 0.1);
+  KeyframeInput a0 = d.input(T0, 1);
+  KeyframeInput b0 = d.input(T1, 2);
+  KeyframeInput a1 = d.input(geometry::apply_to_pose(S_1_0, T0), 3);
+  KeyframeInput b1 = d.input(geometry::apply_to_pose(S_1_0, T1), 4);
+  a1.segment = 1;
+  b1.segment = 1;
+  const Result<KeyframeId> ka0 = m.add_keyframe(a0);
+  const Result<KeyframeId> kb0 = m.add_keyframe(b0);
+  const Result<KeyframeId> ka1 = m.add_keyframe(a1);
+  const Result<KeyframeId> kb1 = m.add_keyframe(b1);
+  ASSERT_TRUE(ka0.is_ok() && kb0.is_ok() && ka1.is_ok() && kb1.is_ok());
+  std::vector<PointId> seg1;
+  for (std::uint32_t k = 0; k < 4; ++k) {
+    const Eigen::Vector3d p_w(0.2 * k, 0.1, 2.0 + 0.1 * k);
+    ASSERT_TRUE(m.add_point(p_w, ka0.value(), k).is_ok());
+    const Result<PointId> q = m.add_point(S_1_0 * p_w, ka1.value(), k);
+    ASSERT_TRUE(q.is_ok());
+    seg1.push_back(q.value());
+  }
+  geometry::Sim3d S;
+  std::uint32_t count = 0;
+  {
+    std::lock_guard<platform::PiMutex> lock(m.writer_lock());
+    EXPECT_EQ(m.merge_segment(1, 1, S_1_0.inverse()), 0U);  // into itself: refused
+    EXPECT_EQ(m.merge_segment(1, 0, S_1_0.inverse()), 2U);
+    EXPECT_EQ(m.merge_segment(1, 0, S_1_0.inverse()), 0U);  // already merged
+  }
+  // Poses and points of segment 1 land on segment 0's, within rounding.
+  for (const auto& [merged, original] :
+       {std::pair{ka1.value(), ka0.value()}, std::pair{kb1.value(), kb0.value()}}) {
+    EXPECT_EQ(m.keyframe_segment(merged), 0U);
+    SE3d T_m;
+    SE3d T_o;
+    ASSERT_TRUE(m.keyframe_pose(merged, T_m) && m.keyframe_pose(original, T_o));
+    EXPECT_LT((T_m.matrix() - T_o.matrix()).norm(), 1e-9);
+  }
+  PointView v;
+  for (std::uint32_t k = 0; k < 4; ++k) {
+    ASSERT_TRUE(m.read_point(seg1[k], v));
+    EXPECT_LT((v.p_w - Eigen::Vector3d(0.2 * k, 0.1, 2.0 + 0.1 * k)).norm(), 1e-9);
+  }
+  // The cells hold them under segment 0 now, none under segment 1.
+  PointId buf[16];
+  EXPECT_EQ(m.query_radius(Eigen::Vector3d(0.3, 0.1, 2.15), 1.0, 0, buf), 8U);
+  EXPECT_EQ(m.query_radius(S_1_0 * Eigen::Vector3d(0.3, 0.1, 2.15), 1.0, 1, buf), 0U);
+  // The merge is recorded and published as a correction of segment 1.
+  SegmentMerge rec;
+  ASSERT_TRUE(m.segment_merge(1, rec));
+  EXPECT_EQ(rec.into, 0U);
+  EXPECT_FALSE(m.segment_merge(0, rec));
+  ASSERT_TRUE(m.read_correction(1, S, count));
+  EXPECT_EQ(count, 1U);
+  const Eigen::Vector3d p(1.0, 2.0, 3.0);
+  EXPECT_LT((S * (S_1_0 * p) - p).norm(), 1e-9);
+  EXPECT_EQ(m.merged_segment(1, S), 0U);
+  EXPECT_LT((S * (S_1_0 * p) - p).norm(), 1e-9);
+}
+
 }  // namespace mer::map

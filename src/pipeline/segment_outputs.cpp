@@ -1,0 +1,180 @@
+#include "pipeline/segment_outputs.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include "core/pose.h"
+
+namespace mer::pipeline {
+namespace {
+
+/// One TUM line: its timestamp text as written (kept exactly) and pose.
+struct PoseLine {
+  std::int64_t t_ns = 0;
+  std::string stamp;
+  SE3d T_w_c = SE3d::Identity();
+};
+
+/// Nanoseconds of a `seconds.fraction` stamp (as output_stage writes it), exact.
+bool parse_stamp(const std::string& s, std::int64_t& t_ns) {
+  const std::size_t dot = s.find('.');
+  try {
+    const std::int64_t sec = std::stoll(s.substr(0, dot));
+    std::int64_t frac = 0;
+    if (dot != std::string::npos) {
+      std::string f = s.substr(dot + 1, 9);
+      f.resize(9, '0');
+      frac = std::stoll(f);
+    }
+    t_ns = sec * 1'000'000'000LL + (s.starts_with('-') ? -frac : frac);
+    return true;
+  } catch (const std::exception&) {
+    return false;
+  }
+}
+
+Status read_lines(const std::filesystem::path& path, std::vector<PoseLine>& out) {
+  std::ifstream in(path);
+  if (!in) return Status::ok();  // a segment without keyframes has no keyframe file
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (line.empty() || line[0] == '#') continue;
+    std::istringstream ss(line);
+    PoseLine p;
+    double v[7];
+    if (!(ss >> p.stamp >> v[0] >> v[1] >> v[2] >> v[3] >> v[4] >> v[5] >> v[6]) ||
+        !parse_stamp(p.stamp, p.t_ns)) {
+      return input_error("'" + path.string() + "' line " + std::to_string(n) +
+                         ": not a TUM pose line");
+    }
+    p.T_w_c.linear() = Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized().toRotationMatrix();
+    p.T_w_c.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
+    out.push_back(std::move(p));
+  }
+  return Status::ok();
+}
+
+Status write_lines(const std::filesystem::path& path, const std::vector<PoseLine>& lines) {
+  const std::filesystem::path tmp = path.string() + ".tmp";
+  std::FILE* f = std::fopen(tmp.c_str(), "w");
+  if (f == nullptr) {
+    return runtime_error("cannot write '" + tmp.string() + "': " + std::strerror(errno));
+  }
+  bool ok = true;
+  for (const PoseLine& p : lines) {
+    const Eigen::Quaterniond q(p.T_w_c.linear());
+    const Eigen::Vector3d& t = p.T_w_c.translation();
+    ok = ok && std::fprintf(f, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", p.stamp.c_str(), t.x(),
+                            t.y(), t.z(), q.x(), q.y(), q.z(), q.w()) > 0;
+  }
+  if (std::fclose(f) != 0 || !ok) return runtime_error("error writing '" + tmp.string() + "'");
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return runtime_error("cannot rename '" + tmp.string() + "': " + ec.message());
+  return Status::ok();
+}
+
+}  // namespace
+
+std::string segment_file_name(std::uint16_t segment, bool keyframes) {
+  const char* kind = keyframes ? "keyframes" : "trajectory";
+  if (segment == 0) return std::string(kind) + ".txt";
+  return std::string(kind) + "_segment_" + std::to_string(segment) + ".txt";
+}
+
+Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRecord> merges,
+                          std::vector<SegmentOutput>& segments, std::uint16_t& main) {
+  main = 0;
+  for (SegmentOutput& g : segments) g.trajectory = segment_file_name(g.id, false);
+  if (segments.empty()) return Status::ok();
+  // Frames of each segment after merging, and where each merged segment ended up.
+  std::map<std::uint16_t, std::uint64_t> frames;
+  for (const SegmentOutput& g : segments) frames[g.id] = g.frames;
+  std::map<std::uint16_t, int> merged_into;
+  std::map<std::uint16_t, std::uint64_t> merged_at;
+  for (const SegmentMergeRecord& m : merges) {
+    frames[m.into] += frames[m.from];
+    frames[m.from] = 0;
+    merged_at.emplace(m.from, m.seq);
+    for (auto& [seg, into] : merged_into) {  // what merged into `from` before now follows it
+      if (into == m.from) into = m.into;
+    }
+    merged_into[m.from] = m.into;
+  }
+  // The main segment: the most frames after merging (the lowest id on a tie).
+  std::uint64_t best = 0;
+  for (const auto& [id, n] : frames) {
+    if (!merged_into.contains(id) && n > best) {
+      best = n;
+      main = id;
+    }
+  }
+  if (dir.empty() || (merges.empty() && main == 0)) return Status::ok();  // as written
+
+  const std::filesystem::path d(dir);
+  // Frames (and keyframes) of each segment, in its own frame, as the run wrote them.
+  std::map<std::uint16_t, std::vector<PoseLine>> traj;
+  std::map<std::uint16_t, std::vector<PoseLine>> kfs;
+  for (const SegmentOutput& g : segments) {
+    if (Status s = read_lines(d / segment_file_name(g.id, false), traj[g.id]); !s.is_ok()) return s;
+    if (Status s = read_lines(d / segment_file_name(g.id, true), kfs[g.id]); !s.is_ok()) return s;
+  }
+  auto join = [](std::vector<PoseLine>& from, std::vector<PoseLine>& into,
+                 const geometry::Sim3d& S) {
+    for (PoseLine& p : from) {
+      p.T_w_c = geometry::apply_to_pose(S, p.T_w_c);
+      into.push_back(std::move(p));
+    }
+    from.clear();
+    std::stable_sort(into.begin(), into.end(),
+                     [](const PoseLine& a, const PoseLine& b) { return a.t_ns < b.t_ns; });
+  };
+  for (const SegmentMergeRecord& m : merges) {
+    join(traj[m.from], traj[m.into], m.S_into_from);
+    join(kfs[m.from], kfs[m.into], m.S_into_from);
+  }
+  auto name = [&](std::uint16_t id, bool keyframes) {
+    if (id == main) return segment_file_name(0, keyframes);
+    if (id == 0) return std::string(keyframes ? "keyframes" : "trajectory") + "_segment_0.txt";
+    return segment_file_name(id, keyframes);
+  };
+  for (SegmentOutput& g : segments) {
+    if (const auto it = merged_into.find(g.id); it != merged_into.end()) {
+      g.merged_into = it->second;
+      g.merged_at_seq = merged_at[g.id];
+      g.trajectory = name(static_cast<std::uint16_t>(it->second), false);
+    } else {
+      g.trajectory = name(g.id, false);
+    }
+  }
+  // Write every surviving segment under its new name, then remove what no segment owns.
+  std::vector<std::string> written;
+  for (const SegmentOutput& g : segments) {
+    if (merged_into.contains(g.id)) continue;
+    for (const bool k : {false, true}) {
+      const std::string n = name(g.id, k);
+      if (Status s = write_lines(d / n, k ? kfs[g.id] : traj[g.id]); !s.is_ok()) return s;
+      written.push_back(n);
+    }
+  }
+  for (const SegmentOutput& g : segments) {
+    for (const bool k : {false, true}) {
+      const std::string n = segment_file_name(g.id, k);
+      if (std::find(written.begin(), written.end(), n) == written.end()) {
+        std::error_code ec;
+        std::filesystem::remove(d / n, ec);
+      }
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace mer::pipeline

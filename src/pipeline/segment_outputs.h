@@ -1,0 +1,51 @@
+#pragma once
+/// @file segment_outputs.h
+/// After a run whose map segments merged (loop.merge_segments), the per-segment trajectory
+/// files are joined like the map was: the frames of a merged segment move into the frame of
+/// the segment it joined (by the merge's similarity) and are written with its frames, in time
+/// order. `trajectory.txt` / `keyframes.txt` then hold the main segment (the one with the most
+/// frames after merging; segment 0 on a tie), each segment that never merged keeps its own
+/// `trajectory_segment_N.txt` (segment 0, when it is not the main one, `..._segment_0.txt`)
+/// and the files of merged segments are removed. Runs after the output stage closed its files;
+/// without a merge nothing is rewritten.
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "core/status.h"
+#include "geometry/sim3.h"
+
+namespace mer::pipeline {
+
+/// One merge, as the loop closer reported it.
+struct SegmentMergeRecord {
+  std::uint16_t from = 0;       ///< the segment that moved
+  std::uint16_t into = 0;       ///< the segment it joined
+  std::uint64_t seq = 0;        ///< frame whose keyframe found the other segment
+  geometry::Sim3d S_into_from;  ///< world of `from` -> world of `into`
+};
+
+/// A segment's frames after merging (SegmentStats gets these fields).
+struct SegmentOutput {
+  std::uint16_t id = 0;
+  std::uint64_t frames = 0;         ///< frames tracked in it (by id, as run)
+  int merged_into = -1;             ///< the segment it finally joined, -1 if none
+  std::uint64_t merged_at_seq = 0;  ///< frame of its (first) merge
+  std::string trajectory;           ///< file holding its frames after merging
+};
+
+/// File names a segment's frames are written to during the run (`trajectory`: trajectory or
+/// keyframes files).
+std::string segment_file_name(std::uint16_t segment, bool keyframes);
+
+/// Joins the segment files of `dir` along `merges` (in the order they happened). `segments`
+/// lists every segment that tracked a frame (id and frames set); on return each says where
+/// its frames are and which segment it merged into. `main` gets the main segment. Error
+/// (naming the file) when a file cannot be read or written; files are replaced atomically
+/// (written beside, then renamed), so a failure loses nothing already written.
+Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRecord> merges,
+                          std::vector<SegmentOutput>& segments, std::uint16_t& main);
+
+}  // namespace mer::pipeline
