@@ -205,14 +205,14 @@ struct LoopReport {
 
 /// Two map segments joined by a loop between them (merge_segments).
 struct SegmentMergeEvent {
-  std::uint64_t seq = 0;        ///< frame of the keyframe that found the other segment
-  std::int64_t t_ns = 0;        ///< its timestamp
-  std::uint64_t loop_seq = 0;   ///< frame of the keyframe it matched
-  std::uint16_t from = 0;       ///< the segment that moved (the newer one) ...
-  std::uint16_t into = 0;       ///< ... into this one's frame
-  int keyframes = 0;            ///< keyframes moved
-  int inliers = 0;              ///< matches the similarity explains
-  geometry::Sim3d S_into_from;  ///< world of `from` -> world of `into`
+  std::uint64_t seq = 0;          ///< frame of the keyframe that found the other segment
+  std::int64_t t_ns = 0;          ///< its timestamp
+  std::uint64_t loop_seq = 0;     ///< frame of the keyframe it matched
+  std::uint16_t from = 0;         ///< the segment that moved (the newer one) ...
+  std::uint16_t into = 0;         ///< ... into this one's frame
+  int keyframes = 0;              ///< keyframes moved
+  int inliers = 0;                ///< matches the similarity explains
+  geometry::Sim3d sim_into_from;  ///< world of `from` -> world of `into`
 };
 
 /// A closed loop, for ground-truth audits: the two keyframes and the similarity the loop

@@ -221,7 +221,7 @@ std::uint32_t Map::merge_segment(std::uint16_t from, std::uint16_t into,
   }
   SegmentMerge& m = merges_[from];
   m.into = into;
-  m.S_into_from = S;
+  m.sim_into_from = S;
   m.into_correction = correction_own_[into];
   m.into_count = static_cast<std::uint32_t>(
       load_payload(correction_[std::size_t{into} * kCorrectionWords + kPoseWords]));
@@ -247,7 +247,7 @@ std::uint16_t Map::merged_segment(std::uint16_t segment,
   SegmentMerge m;
   // Each merge joins a segment into one not merged yet, so the chain ends within kMaxSegments.
   for (std::uint32_t hops = 0; hops < kMaxSegments && segment_merge(segment, m); ++hops) {
-    S_final_segment = m.S_into_from * S_final_segment;
+    S_final_segment = m.sim_into_from * S_final_segment;
     segment = m.into;
   }
   return segment;

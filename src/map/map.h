@@ -152,7 +152,7 @@ struct KeyframeInput {
 /// A map segment that joined another (Map::merge_segment): immutable once recorded.
 struct SegmentMerge {
   std::uint16_t into = kNoSegment;  ///< the segment it joined
-  geometry::Sim3d S_into_from;      ///< its world frame -> that of `into` (map units scale)
+  geometry::Sim3d sim_into_from;    ///< its world frame -> that of `into` (map units scale)
   geometry::Sim3d into_correction;  ///< the cumulative correction of `into` at the merge
   std::uint32_t into_count = 0;     ///< and the number of corrections of `into` it includes
   std::uint32_t from_count = 0;     ///< corrections of the merged segment, the merge included

@@ -260,7 +260,7 @@ Status Pipeline::join_segments() {
   }
   std::vector<SegmentMergeRecord> merges;
   for (const loop::SegmentMergeEvent& e : loop_->totals().merges) {
-    merges.push_back(SegmentMergeRecord{e.from, e.into, e.seq, e.S_into_from});
+    merges.push_back(SegmentMergeRecord{e.from, e.into, e.seq, e.sim_into_from});
   }
   return join_segment_files(output_dir_, merges, segment_outputs_, main_segment_);
 }

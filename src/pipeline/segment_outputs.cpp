@@ -138,8 +138,8 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
                      [](const PoseLine& a, const PoseLine& b) { return a.t_ns < b.t_ns; });
   };
   for (const SegmentMergeRecord& m : merges) {
-    join(traj[m.from], traj[m.into], m.S_into_from);
-    join(kfs[m.from], kfs[m.into], m.S_into_from);
+    join(traj[m.from], traj[m.into], m.sim_into_from);
+    join(kfs[m.from], kfs[m.into], m.sim_into_from);
   }
   auto name = [&](std::uint16_t id, bool keyframes) {
     if (id == main) return segment_file_name(0, keyframes);

@@ -21,10 +21,10 @@ namespace mer::pipeline {
 
 /// One merge, as the loop closer reported it.
 struct SegmentMergeRecord {
-  std::uint16_t from = 0;       ///< the segment that moved
-  std::uint16_t into = 0;       ///< the segment it joined
-  std::uint64_t seq = 0;        ///< frame whose keyframe found the other segment
-  geometry::Sim3d S_into_from;  ///< world of `from` -> world of `into`
+  std::uint16_t from = 0;         ///< the segment that moved
+  std::uint16_t into = 0;         ///< the segment it joined
+  std::uint64_t seq = 0;          ///< frame whose keyframe found the other segment
+  geometry::Sim3d sim_into_from;  ///< world of `from` -> world of `into`
 };
 
 /// A segment's frames after merging (SegmentStats gets these fields).
