@@ -25,6 +25,12 @@
 #                  the ground truth (summary.json gt_audit), the accepted relocalizations
 #                  and closed loops that were wrong (more than 0.10 m / 0.5 m off) and all
 #                  of them, and the map segments at the end
+#          merge   the camera comes back to mapped ground after a loss: room_explore and
+#                  room_kidnap_unknown, seeds 4-11, in the hard table; its last columns
+#                  are the map segments at the end (never merged), the main segment's share
+#                  of the tracked frames (%) and trajectory.txt's ATE over the best own ATE
+#                  (each segment's frames aligned on their own, >= 30 frames) of the
+#                  segments joined in it ('-' without a merge)
 #          robust  orbit and loop seeds under four small keyframe-policy changes besides the
 #                  default (tracking.keyframe.min_baseline_ratio 0.05 / 0.015, min_spread
 #                  0.40 / 0.50): counts the runs that diverge (re-anchored ATE above
@@ -76,7 +82,7 @@ while [ $# -gt 0 ]; do
     --gt-check) GT_CHECK=(--gt-check); shift ;;
     --photo-set) PHOTO_SET="${2:?--photo-set needs all, dev or heldout}"; shift 2 ;;
     -h|--help) usage 0 ;;
-    orbit|loop|hall|kitti|robust|hard|lookalike) sets+=("$1"); shift ;;
+    orbit|loop|hall|kitti|robust|hard|lookalike|merge) sets+=("$1"); shift ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
 done
@@ -127,13 +133,42 @@ run_one() {
     first="$(awk -F, 'NR > 1 && $3 != "not_initialized" && $3 != "lost" { print $1; exit }' \
       "$dir/frames.csv")"
     frames="$(sed -n 's/.*"frames_processed": \([0-9]*\).*/\1/p' <<< "$s" | head -n 1)"
-    local segs
-    segs="$( (grep -o '"merged_into"' "$dir/summary.json" || true) | wc -l)"
-    printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s\n' "$name" "${frames:--}" "${first:--}" \
-      "$(field accuracy tracked_after_init_pct)" "$(field tracking lost)" \
+    # Map segments at the end (those that never merged), the main segment's share of the
+    # tracked frames, and trajectory.txt's ATE over the best own ATE of the segments joined
+    # in it (each segment's own frames aligned on their own, at least 30 of them; '-'
+    # without a merge).
+    local segstat
+    segstat="$( (grep -o '{"id": [^}]*}' <<< "$s" || true) | awk '
+      function num(key) {
+        if (!match($0, "\"" key "\": [-0-9.eE+]+")) return -1
+        return substr($0, RSTART + length(key) + 4, RLENGTH - length(key) - 4) + 0
+      }
+      {
+        frames += num("frames"); into = num("merged_into")
+        if (into < 0) segs++
+        else merged++
+        if (index($0, "\"main\": true") || into >= 0) {
+          joined += num("frames"); own = num("own_ate_rmse_m")
+          if (num("own_pairs") >= 30 && own > 0 && (best == 0 || own < best)) best = own
+        }
+      }
+      END {
+        pct = "-"; if (frames > 0) pct = sprintf("%.1f", 100 * joined / frames)
+        b = "-"; if (merged > 0 && best > 0) b = best
+        printf "%d %s %s %d", segs, pct, b, merged
+      }')"
+    local segs main_pct best_own merged ratio
+    read -r segs main_pct best_own merged <<< "$segstat"
+    ratio="-"
+    if [ "$best_own" != "-" ] && [ "$(field accuracy ate_rmse_m)" != "-" ]; then
+      ratio="$(awk -v a="$(field accuracy ate_rmse_m)" -v b="$best_own" 'BEGIN { printf "%.2f", a / b }')"
+    fi
+    printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s\n' "$name" "${frames:--}" \
+      "${first:--}" "$(field accuracy tracked_after_init_pct)" "$(field tracking lost)" \
       "$(field accuracy ate_rmse_m)" "$(field accuracy ate_pct_of_path)" \
       "$(field gt_audit relocalizations_wrong)/$(field gt_audit relocalizations)" \
-      "$(field gt_audit loops_wrong)/$(field gt_audit loops)" "$segs" >> "$HARD_RESULTS"
+      "$(field gt_audit loops_wrong)/$(field gt_audit loops)" "$segs" "$main_pct" "$ratio" \
+      >> "$HARD_RESULTS"
     if [ "$KEEP" -eq 0 ]; then
       find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml \
         ! -name frames.csv -delete
@@ -200,6 +235,14 @@ for set in "${sets[@]}"; do
         for s in $(seeds_of 1 2 3); do queue "hard_${n}_s$s" "synthetic:$n" "$(hard_yaml "$n" "$s")"; done
       done
       ;;
+    merge)
+      for n in room_explore room_kidnap_unknown; do
+        [ -r "$ROOT/configs/scenarios/$n.yaml" ] || die "missing configs/scenarios/$n.yaml"
+        for s in $(seeds_of 4 5 6 7 8 9 10 11); do
+          queue "hard_${n}_s$s" "synthetic:$n" "$(hard_yaml "$n" "$s")"
+        done
+      done
+      ;;
     lookalike)
       for n in room_repeated hall_repeated; do
         [ -r "$ROOT/configs/scenarios/$n.yaml" ] || die "missing configs/scenarios/$n.yaml"
@@ -228,8 +271,8 @@ wait || true
 sort -o "$RESULTS" "$RESULTS"
 if [ -s "$HARD_RESULTS" ]; then
   sort -o "$HARD_RESULTS" "$HARD_RESULTS"
-  printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s\n' run frames first tracked% lost ate_m ate% \
-    reloc_bad loop_bad segs
+  printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s\n' run frames first tracked% lost \
+    ate_m ate% reloc_bad loop_bad segs main% merge_x
   cat "$HARD_RESULTS"
   awk '$2 != "failed:" { n++; if ($4 != "-") { t += $4; m++ } } $2 == "failed:" { f++ }
     END { printf "hard runs %d, failed %d", n + f, f + 0

@@ -20,6 +20,7 @@
 
 #include "core/pose.h"
 #include "core/status.h"
+#include "core/timestamp.h"
 #include "hal/ground_truth.h"
 
 namespace mer::hal {
@@ -52,11 +53,8 @@ struct EurocSensor {
   SE3d T_b_s = SE3d::Identity();  ///< `T_BS: data: [16 numbers]`, sensor (camera) to body
 };
 
-/// Seconds written in decimal ("1305031102.175304", "1.000000e-01", "-3", "+2.5") to
-/// integer nanoseconds. Plain decimal notation is converted exactly (digits past the 9th
-/// decimal are truncated); exponent notation goes through a double (rounded to the
-/// nearest ns). Returns false for anything else, non-finite values and |t| >= 9.2e9 s.
-bool parse_seconds_ns(std::string_view token, std::int64_t& t_ns);
+/// Seconds in decimal to integer nanoseconds (core/timestamp.h).
+using mer::parse_seconds_ns;
 
 /// TUM image list (`rgb.txt`, `depth.txt`): `timestamp filename` per line.
 /// Errors: a line without exactly two fields, a bad timestamp, a timestamp not strictly

@@ -41,10 +41,43 @@ bool load_groundtruth(const std::string& dir, hal::Trajectory& gt, std::string& 
   gt = std::move(r.value());
   return true;
 }
+/// Timestamps of the frames `dir`/frames.csv lists as tracked in `segment`, sorted; false
+/// with the reason in `note` when the file cannot be read.
+bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::int64_t>& t_ns,
+                          std::string& note) {
+  const std::string path = (std::filesystem::path(dir) / "frames.csv").string();
+  std::ifstream in(path);
+  if (!in) {
+    note = "cannot read '" + path + "'";
+    return false;
+  }
+  constexpr std::size_t kTimeColumn = 1;
+  constexpr std::size_t kStateColumn = 2;
+  constexpr std::size_t kSegmentColumn = 15;
+  const std::string want = std::to_string(segment);
+  std::string line;
+  std::getline(in, line);  // header
+  std::vector<std::string> cols;
+  while (std::getline(in, line)) {
+    cols.clear();
+    std::istringstream ss(line);
+    for (std::string c; std::getline(ss, c, ',');) cols.push_back(c);
+    if (cols.size() <= kSegmentColumn || cols[kStateColumn] != frontend::to_string(frontend::TrackState::kTracked) ||
+        cols[kSegmentColumn] != want) {
+      continue;
+    }
+    std::int64_t t = 0;
+    if (parse_seconds_ns(cols[kTimeColumn], t)) t_ns.push_back(t);
+  }
+  std::sort(t_ns.begin(), t_ns.end());
+  return true;
+}
+
 }  // namespace
 
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
-                            const pipeline::PipelineStats& stats, const std::string& trajectory) {
+                            const pipeline::PipelineStats& stats, const std::string& trajectory,
+                            int only_segment) {
   AccuracyReport a;
   const std::string est_path = (std::filesystem::path(dir) / trajectory).string();
   hal::Trajectory gt;
@@ -60,6 +93,17 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
   if (!est.is_ok()) {
     a.note = est.status().message();
     return a;
+  }
+  if (only_segment >= 0) {
+    std::vector<std::int64_t> keep;
+    if (!segment_frame_stamps(dir, only_segment, keep, a.note)) return a;
+    std::erase_if(est.value().poses, [&](const StampedPose& p) {
+      return !std::binary_search(keep.begin(), keep.end(), p.t_ns);
+    });
+    if (est.value().poses.empty()) {
+      a.note = "no tracked frame in segment " + std::to_string(only_segment);
+      return a;
+    }
   }
   const auto pairs = eval::associate(gt, est.value(), kMaxDtNs);
   if (pairs.size() < kMinPairs) {
@@ -88,7 +132,7 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
   // Tracked fraction from the initialization on: frames at or after the first tracked one.
   std::uint64_t since_init = 0;
   for (const auto& p : g) since_init += p.t_ns >= t_first - kMaxDtNs ? 1 : 0;
-  if (stats.frames_processed > 0 && since_init > 0) {
+  if (only_segment < 0 && stats.frames_processed > 0 && since_init > 0) {
     a.tracked_after_init_pct =
         100.0 * static_cast<double>(tracked) / static_cast<double>(since_init);
   }

@@ -33,9 +33,13 @@ struct AccuracyReport {
 };
 
 /// Scores `dir`/`trajectory` (trajectory.txt by default) against `dir`/groundtruth.txt.
+/// With `only_segment` >= 0, only the frames frames.csv says were tracked in that map
+/// segment are scored (aligned on their own): a merged segment's own accuracy, read from
+/// the file it was joined into.
 AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
                             const pipeline::PipelineStats& stats,
-                            const std::string& trajectory = "trajectory.txt");
+                            const std::string& trajectory = "trajectory.txt",
+                            int only_segment = -1);
 
 /// A relocalization or loop closure further from the truth than this is counted as wrong, m.
 inline constexpr double kWrongRelocalizationM = 0.10;

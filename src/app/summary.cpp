@@ -129,6 +129,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
       j << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
         << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path);
     }
+    if (i < info.accuracy_segments_own.size() && info.accuracy_segments_own[i].available) {
+      j << ", \"own_ate_rmse_m\": " << num(info.accuracy_segments_own[i].ate_rmse_m)
+        << ", \"own_pairs\": " << info.accuracy_segments_own[i].pairs;
+    }
     j << "}";
   }
   j << "],\n";

@@ -34,6 +34,9 @@ struct RunInfo {
   AccuracyReport accuracy_keyframes;  ///< ATE of keyframes_final.txt (the final map)
   /// ATE of each segment's own trajectory file, aligned on its own (PipelineStats::segments)
   std::vector<AccuracyReport> accuracy_segments;
+  /// ATE of the frames each segment tracked itself, aligned on their own (differs from
+  /// accuracy_segments for segments whose frames were joined with a merged segment's)
+  std::vector<AccuracyReport> accuracy_segments_own;
   EventAuditReport events;                ///< relocalizations and loops against the ground truth
   bool final_trajectory_written = false;  ///< trajectory_final.txt was written
   pipeline::FinalTrajectoryStats final_trajectory;  ///< how its frames were re-anchored

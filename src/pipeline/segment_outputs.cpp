@@ -1,6 +1,7 @@
 #include "pipeline/segment_outputs.h"
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -10,34 +11,17 @@
 #include <sstream>
 
 #include "core/pose.h"
+#include "core/timestamp.h"
+#include "pipeline/output_stage.h"
 
 namespace mer::pipeline {
 namespace {
 
-/// One TUM line: its timestamp text as written (kept exactly) and pose.
+/// One TUM line of a segment file, as the output stage wrote it.
 struct PoseLine {
   std::int64_t t_ns = 0;
-  std::string stamp;
   SE3d T_w_c = SE3d::Identity();
 };
-
-/// Nanoseconds of a `seconds.fraction` stamp (as output_stage writes it), exact.
-bool parse_stamp(const std::string& s, std::int64_t& t_ns) {
-  const std::size_t dot = s.find('.');
-  try {
-    const std::int64_t sec = std::stoll(s.substr(0, dot));
-    std::int64_t frac = 0;
-    if (dot != std::string::npos) {
-      std::string f = s.substr(dot + 1, 9);
-      f.resize(9, '0');
-      frac = std::stoll(f);
-    }
-    t_ns = sec * 1'000'000'000LL + (s.starts_with('-') ? -frac : frac);
-    return true;
-  } catch (const std::exception&) {
-    return false;
-  }
-}
 
 Status read_lines(const std::filesystem::path& path, std::vector<PoseLine>& out) {
   std::ifstream in(path);
@@ -48,16 +32,17 @@ Status read_lines(const std::filesystem::path& path, std::vector<PoseLine>& out)
     ++n;
     if (line.empty() || line[0] == '#') continue;
     std::istringstream ss(line);
+    std::string stamp;
     PoseLine p;
     double v[7];
-    if (!(ss >> p.stamp >> v[0] >> v[1] >> v[2] >> v[3] >> v[4] >> v[5] >> v[6]) ||
-        !parse_stamp(p.stamp, p.t_ns)) {
+    if (!(ss >> stamp >> v[0] >> v[1] >> v[2] >> v[3] >> v[4] >> v[5] >> v[6]) ||
+        !parse_seconds_ns(stamp, p.t_ns)) {
       return input_error("'" + path.string() + "' line " + std::to_string(n) +
                          ": not a TUM pose line");
     }
     p.T_w_c.linear() = Eigen::Quaterniond(v[6], v[3], v[4], v[5]).normalized().toRotationMatrix();
     p.T_w_c.translation() = Eigen::Vector3d(v[0], v[1], v[2]);
-    out.push_back(std::move(p));
+    out.push_back(p);
   }
   return Status::ok();
 }
@@ -69,11 +54,11 @@ Status write_lines(const std::filesystem::path& path, const std::vector<PoseLine
     return runtime_error("cannot write '" + tmp.string() + "': " + std::strerror(errno));
   }
   bool ok = true;
+  std::array<char, 256> buf{};
   for (const PoseLine& p : lines) {
-    const Eigen::Quaterniond q(p.T_w_c.linear());
-    const Eigen::Vector3d& t = p.T_w_c.translation();
-    ok = ok && std::fprintf(f, "%s %.9f %.9f %.9f %.9f %.9f %.9f %.9f\n", p.stamp.c_str(), t.x(),
-                            t.y(), t.z(), q.x(), q.y(), q.z(), q.w()) > 0;
+    const int n = format_tum_line(buf.data(), buf.size(), p.t_ns, p.T_w_c);
+    ok = ok && n > 0 &&
+         std::fwrite(buf.data(), 1, static_cast<std::size_t>(n), f) == static_cast<std::size_t>(n);
   }
   if (std::fclose(f) != 0 || !ok) return runtime_error("error writing '" + tmp.string() + "'");
   std::error_code ec;
@@ -131,7 +116,7 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
                  const geometry::Sim3d& S) {
     for (PoseLine& p : from) {
       p.T_w_c = geometry::apply_to_pose(S, p.T_w_c);
-      into.push_back(std::move(p));
+      into.push_back(p);
     }
     from.clear();
     std::stable_sort(into.begin(), into.end(),
