@@ -261,7 +261,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   const loop::LoopTotals& lp = st.loop;
   j << "  \"loop\": {\"keyframes_checked\": " << lp.keyframes_checked
     << ", \"candidates_checked\": " << lp.candidates_checked
-    << ", \"loops_closed\": " << lp.loops_closed << ", \"segments_merged\": " << lp.segments_merged
+    << ", \"queue_full\": " << st.loop_queue_full << ", \"loops_closed\": " << lp.loops_closed
+    << ", \"segments_merged\": " << lp.segments_merged
     << ", \"merged_points\": " << lp.merged_points << ", \"max_ms\": " << num(lp.max_ms)
     << ", \"max_full_ba_ms\": " << num(lp.max_full_ba_ms)
     << ", \"last_loop_seq\": " << lp.last_loop.loop_seq

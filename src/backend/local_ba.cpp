@@ -163,6 +163,7 @@ struct PoseBlock {
   double depth_scale = 1.0;  // s of the keyframe's local depth
   bool fixed = false;
   map::Generation generation = map::kNoGeneration;  // occupant the pose was read from
+  SE3d T_w_c_read = SE3d::Identity();               // read from the map (moved: not written)
 };
 
 struct PointBlock {
@@ -387,6 +388,7 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
     b.t = {T_c_w.translation().x(), T_c_w.translation().y(), T_c_w.translation().z()};
     b.fixed = fixed;
     b.generation = map_.keyframe_generation(id);
+    b.T_w_c_read = T_w_c;
     if (poses.size() == poses.capacity() || !pose_index.emplace(id, poses.size()).second) {
       return false;
     }
@@ -685,14 +687,18 @@ LocalBaReport LocalBundleAdjuster::optimize(const std::vector<map::KeyframeId>& 
   //    observations meanwhile and moved points it re-observed; culling of this thread does
   //    not run between. A keyframe or point freed (or its slot reused: generation) is not
   //    written; a point the builder moved keeps the builder's position (newer evidence), and
-  //    a point that gained observations is not culled (they were not judged).
+  //    a point that gained observations is not culled (they were not judged). A keyframe
+  //    another writer moved meanwhile (the loop thread: a loop correction, a segment merge,
+  //    the full BA after them) keeps that pose: this run's result is in the frame before.
   const auto t_wait = std::chrono::steady_clock::now();
   lock.lock();
   rep.lock_wait_ms +=
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_wait).count();
   for (const auto& [id, b] : poses) {
     if (b.fixed || !problem.HasParameterBlock(b.q.data())) continue;
-    if (map_.keyframe_generation(id) != b.generation) {
+    SE3d T_w_c_now;
+    if (map_.keyframe_generation(id) != b.generation || !map_.keyframe_pose(id, T_w_c_now) ||
+        T_w_c_now.matrix() != b.T_w_c_read.matrix()) {
       ++rep.stale_writes;
       continue;
     }

@@ -24,8 +24,9 @@
 /// reads the window from the map and builds the problem, releases it while Ceres solves
 /// (the problem holds copies), and takes it again to write back: whatever the builder did
 /// meanwhile is respected (a keyframe or point freed or reused is skipped by generation, a
-/// point the builder moved keeps its new position, a point that gained observations is not
-/// culled; counted in `stale_writes`). In lockstep nothing changes in between, so results are
+/// point the builder moved keeps its new position, a keyframe another writer moved — the
+/// loop thread's correction, merge or full BA — keeps its new pose, a point that gained
+/// observations is not culled; counted in `stale_writes`). In lockstep nothing changes in between, so results are
 /// the same as with one lock span.
 ///
 /// Abort latency (request_abort until the run returns): the request is polled per window

@@ -33,8 +33,12 @@
 ///     correction of the newest keyframe (Map::publish_correction) for the tracker. A bounded
 ///     full-graph bundle adjustment (`full_ba_iterations`) follows.
 ///
-/// Threading: runs on the back-end thread after local BA and culling (lockstep: inline).
-/// Holds the map's writer lock from retrieval to publication; the full BA takes it itself.
+/// Threading: runs on its own thread, the loop thread (lowest priority), on each keyframe
+/// after the back end's local BA and culling (lockstep: inline, after them). Holds the map's
+/// writer lock from retrieval to publication; the full BA (its own adjuster in threaded
+/// mode) takes it itself to read the map and to write back, not while it solves, and a new
+/// keyframe pre-empts it. A local BA that ran meanwhile leaves the keyframes and points the
+/// loop moved as the loop left them (local_ba.h).
 
 #include <array>
 #include <cstdint>

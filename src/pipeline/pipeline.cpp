@@ -141,8 +141,13 @@ Status Pipeline::init(const std::string& output_dir) {
       builder_->metric_map_depth());
   culler_ =
       std::make_unique<backend::MapCuller>(config_.culling, *map_, builder_->metric_map_depth());
+  if (!config_.pipeline.lockstep) {
+    loop_ba_ = std::make_unique<backend::LocalBundleAdjuster>(
+        config_.backend, *map_, tracker_->level_sigma2(), false, builder_->metric_map_depth());
+  }
   loop_ = std::make_unique<loop::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
-                                             builder_->metric_map_depth(), ba_.get());
+                                             builder_->metric_map_depth(),
+                                             loop_ba_ ? loop_ba_.get() : ba_.get());
   if (config_.relocalization.enabled) {
     int reader = -1;
     if (!config_.pipeline.lockstep) {
@@ -564,6 +569,10 @@ Status Pipeline::run_threaded() {
   platform::Notifier job_wake;
   auto backend_ring = std::make_unique<platform::SpscRing<BackendJob, kBackendQueue>>();
   platform::Notifier backend_wake;
+  auto loop_ring = std::make_unique<platform::SpscRing<BackendJob, kLoopQueue>>();
+  platform::Notifier loop_wake;
+  std::atomic<bool> backend_done{false};
+  const bool loop_enabled = config_.loop.enabled;
   std::atomic<bool> capture_done{false};
   std::atomic<bool> tracking_done{false};
   std::atomic<bool> depth_done{false};
@@ -736,7 +745,10 @@ Status Pipeline::run_threaded() {
           // stale, and the run around the new keyframe can start now. (Not when the tracker
           // queues the job: the new keyframe is not in the map until depth inference is
           // done, so aborting then would only throw away optimization.)
-          if (rep.ok) ba_->request_abort();
+          if (rep.ok) {
+            ba_->request_abort();
+            loop_ba_->request_abort();  // as documented: a new keyframe pre-empts the full BA
+          }
           backend_wake.notify();
         });
     if (reloc_reader_ >= 0) map_->release_reader(reloc_reader_);
@@ -771,9 +783,28 @@ Status Pipeline::run_threaded() {
           const bool cull_live = map_->keyframe_generation(batch.cull.kf) == batch.cull.generation;
           optimize_and_cull(ba_live ? batch.ba.kf : map::kNoId, batch.ba.K, batch.ba.seq,
                             cull_live ? batch.cull.kf : map_->newest_keyframe());
-          if (ba_live && map_->keyframe_generation(batch.ba.kf) == batch.ba.generation) {
-            (void)loop_->spin_once(batch.ba.kf, batch.ba.K);
+          // Loop detection and correction run on their own thread, after the local BA the
+          // keyframe had; a full queue (the loop thread far behind) skips the keyframe.
+          if (loop_enabled && ba_live &&
+              map_->keyframe_generation(batch.ba.kf) == batch.ba.generation) {
+            if (loop_ring->try_push(batch.ba)) {
+              loop_wake.notify();
+            } else {
+              ++stats_.loop_queue_full;
+            }
           }
+        });
+    backend_done.store(true, std::memory_order_release);
+    loop_wake.notify_all();
+  };
+
+  // Loop-closure thread (lowest priority): detection, correction and the full BA after a
+  // loop, writing the map under its writer lock as every writer does.
+  auto loop_body = [&] {
+    consume_loop<BackendJob>(
+        loop_wake, backend_done, [&](BackendJob& j) { return loop_ring->try_pop(j); },
+        [&](BackendJob& j) {
+          if (map_->keyframe_generation(j.kf) == j.generation) (void)loop_->spin_once(j.kf, j.K);
         });
   };
 
@@ -797,12 +828,14 @@ Status Pipeline::run_threaded() {
   };
 
   platform::RtThread output_thread;
+  platform::RtThread loop_thread;
   platform::RtThread backend_thread;
   platform::RtThread depth_thread;
   platform::RtThread tracking_thread;
   platform::RtThread capture_thread;
   // Start consumers first so the capture ring is drained from the first frame.
   const bool ok = output_thread.start(threads.output, output_body) &&
+                  loop_thread.start(threads.loop, loop_body) &&
                   backend_thread.start(threads.backend, backend_body) &&
                   depth_thread.start(threads.depth, depth_body) &&
                   tracking_thread.start(threads.tracking, tracking_body) &&
@@ -815,21 +848,23 @@ Status Pipeline::run_threaded() {
     job_wake.notify_all();
     depth_done.store(true);
     backend_wake.notify_all();
+    backend_done.store(true);
+    loop_wake.notify_all();
   }
-  // Shutdown order: capture ends -> tracking drains -> depth drains -> back end drains.
+  // Shutdown order: capture ends -> tracking drains -> depth drains -> back end drains ->
+  // loop closure drains.
   capture_thread.join();
   tracking_thread.join();
   depth_thread.join();
   backend_thread.join();
+  loop_thread.join();
   output_thread.join();
   if (!ok) return runtime_error("pipeline: could not start the stage threads");
 
   const std::pair<const platform::ThreadSpec*, const platform::RtThread*> placed[] = {
-      {&threads.capture, &capture_thread},
-      {&threads.tracking, &tracking_thread},
-      {&threads.output, &output_thread},
-      {&threads.depth, &depth_thread},
-      {&threads.backend, &backend_thread}};
+      {&threads.capture, &capture_thread}, {&threads.tracking, &tracking_thread},
+      {&threads.output, &output_thread},   {&threads.depth, &depth_thread},
+      {&threads.backend, &backend_thread}, {&threads.loop, &loop_thread}};
   for (const auto& [spec, t] : placed) {
     stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
                                              t->report().fully_applied(), t->report().warning});

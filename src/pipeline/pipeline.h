@@ -65,6 +65,8 @@ inline constexpr std::size_t kResultRingSize = 256;
 inline constexpr std::size_t kKeyframeJobs = 8;
 /// Keyframes queued from the depth thread to the back-end thread (drained at each wake-up).
 inline constexpr std::size_t kBackendQueue = 2 * kKeyframeJobs;
+/// Keyframes queued from the back-end thread to the loop-closure thread (threaded mode).
+inline constexpr std::size_t kLoopQueue = 4 * kKeyframeJobs;
 
 /// Everything the pipeline needs from the configuration.
 struct PipelineConfig {
@@ -174,6 +176,8 @@ struct PipelineStats {
   std::uint64_t frames_lost = 0;             ///< processed frames without a pose
   std::uint64_t keyframes = 0;               ///< keyframes alive in the map at the end
   std::uint64_t keyframes_deferred = 0;      ///< keyframe decisions retried: every job slot busy
+  std::uint64_t loop_queue_full = 0;         ///< threaded: keyframes not checked for a loop,
+                                             ///< the loop thread's queue was full
   std::uint64_t backend_coalesced = 0;       ///< keyframes whose local BA was left to a newer
                                              ///< one queued behind it (threaded)
   std::uint64_t map_points = 0;              ///< map-points alive at the end
@@ -267,6 +271,9 @@ class Pipeline {
   std::unique_ptr<frontend::Tracker> tracker_;
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
+  /// Threaded: the loop thread's full BA after a loop, its own problem and workspace so that
+  /// it never holds up the back end's local BA (lockstep: the loop closer uses ba_).
+  std::unique_ptr<backend::LocalBundleAdjuster> loop_ba_;
   std::unique_ptr<backend::MapCuller> culler_;
   std::unique_ptr<loop::LoopCloser> loop_;
   std::unique_ptr<loop::Relocalizer> relocalizer_;  ///< null when relocalization.enabled is off

@@ -16,6 +16,7 @@
 #include <gtest/gtest.h>
 
 #include "geometry/lie.h"
+#include "platform/pi_mutex.h"
 
 namespace mer::backend {
 namespace {
@@ -526,6 +527,38 @@ void expect_state_of_a_run_of(const AbortFixture& f, int iterations) {
   for (std::size_t k = 0; k < a.size(); ++k) {
     EXPECT_LT((a[k].matrix() - b[k].matrix()).norm(), 1e-9) << "keyframe " << k;
   }
+}
+
+// A keyframe that another writer moves while the solve runs without the lock (the loop
+// thread's correction, merge or full BA) keeps that writer's pose: the run's result for it
+// is in the frame from before. The other keyframes get the run's result.
+TEST(LocalBa, KeyframeMovedDuringTheSolveKeepsItsNewPose) {
+  AbortFixture f;
+  const std::vector<SE3d> before = f.poses();
+  const map::KeyframeId moved_kf = f.s.kf.back();
+  SE3d moved = before.back();
+  moved.translation() += Eigen::Vector3d(0.5, -0.25, 0.125);
+  LocalBundleAdjuster ba(f.o, f.map, {1.0F}, /*deterministic=*/true, true);
+  bool done = false;
+  bool locked = false;
+  ba.set_poll_observer([&](LocalBaPoll p) {
+    if (p != LocalBaPoll::kIteration || done) return;
+    done = true;
+    std::unique_lock<platform::PiMutex> lock(f.map.writer_lock(), std::try_to_lock);
+    locked = lock.owns_lock();  // the solve runs without the writer lock
+    if (locked) f.map.set_keyframe_pose(moved_kf, moved);
+  });
+  const LocalBaReport rep = ba.spin_once(moved_kf, kK);
+  ASSERT_TRUE(done) << "the solve made no iteration";
+  ASSERT_TRUE(locked) << "the writer lock was held while Ceres solved";
+  EXPECT_GE(rep.stale_writes, 1);
+  const std::vector<SE3d> after = f.poses();
+  EXPECT_TRUE(after.back().matrix() == moved.matrix());
+  int optimized = 0;
+  for (std::size_t k = 0; k + 1 < after.size(); ++k) {
+    optimized += after[k].matrix() != before[k].matrix() ? 1 : 0;
+  }
+  EXPECT_GT(optimized, 0) << "the other keyframes were not written";
 }
 
 TEST(LocalBa, AbortDuringProblemConstructionEndsTheRunAtThatPoll) {
