@@ -41,8 +41,8 @@ bool load_groundtruth(const std::string& dir, hal::Trajectory& gt, std::string& 
   gt = std::move(r.value());
   return true;
 }
-/// Timestamps of the frames `dir`/frames.csv lists as tracked in `segment`, sorted; false
-/// with the reason in `note` when the file cannot be read.
+/// Timestamps of the frames `dir`/frames.csv lists as tracked in `segment` (any segment when
+/// negative), sorted; false with the reason in `note` when the file cannot be read.
 bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::int64_t>& t_ns,
                           std::string& note) {
   const std::string path = (std::filesystem::path(dir) / "frames.csv").string();
@@ -62,8 +62,9 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
     cols.clear();
     std::istringstream ss(line);
     for (std::string c; std::getline(ss, c, ',');) cols.push_back(c);
-    if (cols.size() <= kSegmentColumn || cols[kStateColumn] != frontend::to_string(frontend::TrackState::kTracked) ||
-        cols[kSegmentColumn] != want) {
+    if (cols.size() <= kSegmentColumn ||
+        cols[kStateColumn] != frontend::to_string(frontend::TrackState::kTracked) ||
+        (segment >= 0 && cols[kSegmentColumn] != want)) {
       continue;
     }
     std::int64_t t = 0;
@@ -129,9 +130,18 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
     a.path_length_m += (g[i].T_w_c.translation() - g[i - 1].T_w_c.translation()).norm();
   }
   a.ate_pct_of_path = a.path_length_m > 0.0 ? 100.0 * a.ate_rmse_m / a.path_length_m : 0.0;
-  // Tracked fraction from the initialization on: frames at or after the first tracked one.
+  // Tracked fraction from the initialization on: frames at or after the first tracked one
+  // of the run, in any segment (`tracked` counts them all; trajectory.txt may hold a
+  // segment that started later).
+  std::int64_t t_init = t_first;
+  if (std::vector<std::int64_t> all; only_segment < 0) {
+    std::string ignored;
+    if (segment_frame_stamps(dir, -1, all, ignored) && !all.empty()) {
+      t_init = std::min(t_init, all.front());
+    }
+  }
   std::uint64_t since_init = 0;
-  for (const auto& p : g) since_init += p.t_ns >= t_first - kMaxDtNs ? 1 : 0;
+  for (const auto& p : g) since_init += p.t_ns >= t_init - kMaxDtNs ? 1 : 0;
   if (only_segment < 0 && stats.frames_processed > 0 && since_init > 0) {
     a.tracked_after_init_pct =
         100.0 * static_cast<double>(tracked) / static_cast<double>(since_init);
