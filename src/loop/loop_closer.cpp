@@ -32,6 +32,10 @@ constexpr std::uint64_t kConsistencyWindowKeyframes = 3;
 constexpr std::size_t kMaxLoopEdges = 4096;
 /// A Sim(3) fit's scale outside [1/k, k] is not drift, it is a wrong match.
 constexpr double kMaxLoopScale = 2.0;
+/// Between two monocular segments the scale is not drift but the ratio of the scales their
+/// initializations chose (each from its own first views' depths): any ratio is possible, and
+/// the bound only keeps degenerate fits out.
+constexpr double kMaxMergeScale = 100.0;
 /// Refits of a loop similarity on its inliers before the inlier set is taken as settled.
 constexpr int kRefitRounds = 3;
 /// Nanoseconds per second (min_time_gap_s).
@@ -50,9 +54,9 @@ Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eige
   return geometry::umeyama_sim3(src, dst, !metric);
 }
 
-bool plausible_sim3(const Sim3d& S) {
-  return std::isfinite(S.s) && S.s > 1.0 / kMaxLoopScale && S.s < kMaxLoopScale &&
-         S.R.allFinite() && S.t.allFinite();
+bool plausible_sim3(const Sim3d& S, double max_scale) {
+  return std::isfinite(S.s) && S.s > 1.0 / max_scale && S.s < max_scale && S.R.allFinite() &&
+         S.t.allFinite();
 }
 
 double elapsed_ms(std::chrono::steady_clock::time_point t0) {
@@ -277,6 +281,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
   for (const Candidate& c : ranked) {
     const map::KeyframeId cand = c.id;
+    max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
     ++rep.candidates;
     ++totals_.candidates_checked;
     int m = match_points(kf, cand);
@@ -695,7 +700,7 @@ int LoopCloser::refit_sim3(map::KeyframeId kf, const geometry::Pinhole& K, Sim3d
     }
     if (idx.size() < 3) break;
     const Sim3d S = fit_sim3(x_new_, x_old_, idx, metric_);
-    if (!plausible_sim3(S)) break;
+    if (!plausible_sim3(S, max_scale_)) break;
     std::vector<std::uint8_t> mask(n, 0);
     const int c = count_sim3_inliers(kf, S, K, &mask);
     if (c < best) break;
@@ -752,7 +757,7 @@ int LoopCloser::refine_sim3(map::KeyframeId kf, const geometry::Pinhole& K, int 
   S.R = Eigen::Quaterniond(qv[3], qv[0], qv[1], qv[2]).normalized().toRotationMatrix();
   S.t = {tv[0], tv[1], tv[2]};
   S.s = std::exp(log_s);
-  if (!plausible_sim3(S)) return inliers;
+  if (!plausible_sim3(S, max_scale_)) return inliers;
   std::vector<std::uint8_t> mask(matches_.size(), 0);
   const int c = count_sim3_inliers(kf, S, K, &mask);
   if (c < inliers) return inliers;
@@ -776,7 +781,7 @@ int LoopCloser::ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geom
     sample[2] = rng.uniform_index(static_cast<std::uint32_t>(n));
     if (sample[0] == sample[1] || sample[0] == sample[2] || sample[1] == sample[2]) continue;
     const Sim3d S = fit_sim3(x_new_, x_old_, sample, metric_);
-    if (!plausible_sim3(S)) continue;
+    if (!plausible_sim3(S, max_scale_)) continue;
     const int c = count_sim3_inliers(kf, S, K, nullptr);
     if (c > best) {
       best = c;
@@ -853,7 +858,7 @@ int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const S
   return static_cast<int>(matches_.size()) - static_cast<int>(before);
 }
 
-void LoopCloser::merge_segments(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
+void LoopCloser::merge_segments(map::KeyframeId kf, map::KeyframeId cand, Sim3d& S_cand_new,
                                 LoopReport& rep) {
   const std::uint16_t seg_new = map_.keyframe_segment(kf);
   const std::uint16_t seg_cand = map_.keyframe_segment(cand);
@@ -873,6 +878,10 @@ void LoopCloser::merge_segments(map::KeyframeId kf, map::KeyframeId cand, const 
   const Sim3d S_into_from = new_moves ? S_wcand_wnew : S_wcand_wnew.inverse();
   const std::uint32_t moved = map_.merge_segment(from, into, S_into_from);
   if (moved == 0) return;
+  // The moved side's camera coordinates scaled with its map: the new keyframe's by s (x_old =
+  // s R x + t = R (s x) + t) or the candidate's by 1 / s (x_old / s = R x + t / s).
+  if (!new_moves) S_cand_new.t /= S_cand_new.s;
+  S_cand_new.s = 1.0;
   rep.merged_from = from;
   rep.merged_into = into;
   rep.merge_keyframes = static_cast<int>(moved);

@@ -351,7 +351,10 @@ class LoopCloser {
                      const geometry::Pinhole& K);
   /// kf and cand are of different segments: moves the newer segment into the older one's
   /// frame (Map::merge_segment) by the similarity between the two cameras; rep says which.
-  void merge_segments(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+  /// After a merge S_cand_new is re-expressed in the joined map's units (its scale was the
+  /// ratio of the two segments' scales, now applied by the merge: it becomes 1), so that the
+  /// loop correction that follows does not apply it a second time.
+  void merge_segments(map::KeyframeId kf, map::KeyframeId cand, geometry::Sim3d& S_cand_new,
                       LoopReport& rep);
   int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
               const geometry::Pinhole& K, LoopReport& rep);
@@ -383,6 +386,7 @@ class LoopCloser {
   map::Map& map_;
   std::vector<float> level_sigma2_;
   bool metric_;
+  double max_scale_ = 0.0;  // scale bound of the candidate being checked (set per candidate)
   backend::LocalBundleAdjuster* ba_;
   KeyframeDatabase db_;
   std::uint64_t last_loop_serial_ = 0;

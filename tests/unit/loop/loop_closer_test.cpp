@@ -77,7 +77,11 @@ struct LoopScene {
   // depth_noise: each map point (both sides) is off its true position along its keyframe's
   // ray by this relative standard deviation, as triangulated points are; the keypoints stay
   // exact.
-  explicit LoopScene(double depth_noise = 0.0) : map(options()) {
+  // B_segment: B is made in that map segment (another one than A's: a merge); drift_scale:
+  // the scale of B's side (a new monocular segment's scale is its own, any ratio).
+  explicit LoopScene(double depth_noise = 0.0, std::uint16_t b_segment = 0,
+                     double drift_scale = kDrift)
+      : map(options()) {
     std::mt19937_64 rng(7);
     // (std::normal_distribution needs a positive sigma; without noise nothing is drawn.)
     std::normal_distribution<double> noise(0.0, depth_noise > 0.0 ? depth_noise : 1.0);
@@ -117,14 +121,14 @@ struct LoopScene {
     geometry::Sim3d S;
     S.R = Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
     S.t = Eigen::Vector3d(0.05, 0.02, -0.03);
-    S.s = kDrift;
+    S.s = drift_scale;
     const SE3d T_w_b_true(Eigen::Translation3d(kBaseline, 0.0, 0.0));
     SE3d T_w_b = SE3d::Identity();
     T_w_b.linear() = S.R * T_w_b_true.linear();
     T_w_b.translation() = S * T_w_b_true.translation();
     std::vector<features::Descriptor> desc_b = desc;
     for (features::Descriptor& d : desc_b) d[0] ^= 0x11ULL;  // 2 bits: another view's noise
-    b = add_view(T_w_b_true, T_w_b, pts, desc_b, 5, 5 * kMsPerKeyframe);
+    b = add_view(T_w_b_true, T_w_b, pts, desc_b, 5, 5 * kMsPerKeyframe, b_segment);
     for (int i = 0; i < kPoints; ++i) {
       const Eigen::Vector3d& p = pts[static_cast<std::size_t>(i)];
       const Eigen::Vector3d p_b =
@@ -136,8 +140,8 @@ struct LoopScene {
   map::KeyframeId add_view(const SE3d& T_true, const SE3d& T_stored,
                            const std::vector<Eigen::Vector3d>& pts,
                            const std::vector<features::Descriptor>& desc, std::uint64_t seq,
-                           std::uint64_t t) {
-    return scene::add_view(map, K, T_true, T_stored, pts, desc, seq, t);
+                           std::uint64_t t, std::uint16_t segment = 0) {
+    return scene::add_view(map, K, T_true, T_stored, pts, desc, seq, t, segment);
   }
 };
 
@@ -208,6 +212,48 @@ TEST(LoopCloser, ReprojectionRefinementRecoversTheLoopSimilarity) {
   EXPECT_LT(e1.rot_deg, 0.5 * e0.rot_deg);
   EXPECT_LT(e1.t, 0.5 * e0.t);
   EXPECT_LT(e1.scale, 0.5 * e0.scale + 1e-3);
+}
+
+// A loop onto another segment's keyframe merges the two: B's segment (its own scale, 0.3 of
+// A's, as a new monocular segment has) moves into A's frame and lands where the truth is. The
+// correction after the merge is rigid: the merge applied the scale, the loop must not apply
+// it again (it did: B's neighbourhood shrank by 0.3 around B). Also past the loop scale
+// bound of one segment (2): between segments any scale ratio is possible.
+TEST(LoopCloser, MergeOfASegmentWithAnotherScaleLandsOnTheTruth) {
+  constexpr double kSegmentScale = 0.3;
+  LoopScene scene(0.0, 1, kSegmentScale);
+  LoopOptions o;
+  o.min_keyframe_gap = 2;
+  LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
+  const LoopReport rep = closer.spin_once(scene.b, scene.K);
+  ASSERT_TRUE(rep.closed);
+  EXPECT_EQ(rep.merged_from, 1);
+  EXPECT_EQ(rep.merged_into, 0);
+  EXPECT_NEAR(rep.merge_similarity.s, 1.0 / kSegmentScale, 0.01 / kSegmentScale);
+  EXPECT_NEAR(rep.scale, 1.0, 1e-3) << "the merge's scale applied again by the correction";
+  EXPECT_EQ(scene.map.keyframe_segment(scene.b), 0);
+  SE3d T_w_b;
+  ASSERT_TRUE(scene.map.keyframe_pose(scene.b, T_w_b));
+  EXPECT_LT((T_w_b.translation() - Eigen::Vector3d(LoopScene::kBaseline, 0.0, 0.0)).norm(), 0.01);
+  // B's points (after the fusion, A's or B's, wherever they are) where the truth has them.
+  SE3d T_w_a;
+  ASSERT_TRUE(scene.map.keyframe_pose(scene.a, T_w_a));
+  int checked = 0;
+  double worst = 0.0;
+  for (std::uint32_t i = 0; i < static_cast<std::uint32_t>(LoopScene::kPoints); ++i) {
+    map::PointView pa;
+    map::PointView pb;
+    const map::PointId qa = scene.map.keyframe_point(scene.a, i);
+    const map::PointId qb = scene.map.keyframe_point(scene.b, i);
+    if (qa == map::kNoId || qb == map::kNoId || !scene.map.read_point(qa, pa) ||
+        !scene.map.read_point(qb, pb)) {
+      continue;
+    }
+    worst = std::max(worst, (pa.p_w - pb.p_w).norm());
+    ++checked;
+  }
+  EXPECT_GT(checked, LoopScene::kPoints / 2);
+  EXPECT_LT(worst, 0.01) << "A's and B's views of one point disagree after the merge";
 }
 
 // The same loop made 5 ms after the old keyframe instead of 5 s: within min_time_gap_s the old

@@ -18,11 +18,12 @@
 namespace mer::loop::scene {
 
 /// Adds a keyframe whose keypoints are pts seen from T_true (level 0; point i gives keypoint
-/// i), stored in the map with pose T_stored and descriptors desc; capture time t ms.
+/// i), stored in the map with pose T_stored and descriptors desc; capture time t ms; in map
+/// segment `segment`.
 inline map::KeyframeId add_view(map::Map& map, const geometry::Pinhole& K, const SE3d& T_true,
                                 const SE3d& T_stored, const std::vector<Eigen::Vector3d>& pts,
                                 const std::vector<features::Descriptor>& desc, std::uint64_t seq,
-                                std::uint64_t t) {
+                                std::uint64_t t, std::uint16_t segment = 0) {
   std::vector<features::Keypoint> kps;
   for (const Eigen::Vector3d& p : pts) {
     const Eigen::Vector2d uv = K.project(T_true.inverse() * p);
@@ -37,6 +38,7 @@ inline map::KeyframeId add_view(map::Map& map, const geometry::Pinhole& K, const
   in.seq = seq;
   in.t_ns = static_cast<std::int64_t>(t) * 1000000;
   in.T_w_c = T_stored;
+  in.segment = segment;
   in.keypoints = kps;
   in.descriptors = desc;
   const Result<map::KeyframeId> r = map.add_keyframe(in);
