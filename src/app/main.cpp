@@ -132,11 +132,11 @@ int main(int argc, char** argv) {
     // Each segment's own frames, aligned on their own: the same as its file's unless
     // segments merged (a merged segment's frames are in the file it joined).
     for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      info.accuracy_segments_own.push_back(
-          pipe.stats().segments.size() > 1
-              ? app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
-                                  g.trajectory, g.id)
-              : info.accuracy_segments.back());
+      info.accuracy_segments_own.push_back(pipe.stats().segments.size() > 1
+                                               ? app::evaluate_run(args.output_dir,
+                                                                   config.pipeline.mode,
+                                                                   pipe.stats(), g.trajectory, g.id)
+                                               : info.accuracy_segments.back());
     }
     // An event is scored in its segment's own frame, as it was when it happened.
     info.events = app::audit_events(args.output_dir, pipe.stats(), info.accuracy_segments_own);

@@ -26,8 +26,8 @@
 /// meanwhile is respected (a keyframe or point freed or reused is skipped by generation, a
 /// point the builder moved keeps its new position, a keyframe another writer moved — the
 /// loop thread's correction, merge or full BA — keeps its new pose, a point that gained
-/// observations is not culled; counted in `stale_writes`). In lockstep nothing changes in between, so results are
-/// the same as with one lock span.
+/// observations is not culled; counted in `stale_writes`). In lockstep nothing changes in between,
+/// so results are the same as with one lock span.
 ///
 /// Abort latency (request_abort until the run returns): the request is polled per window
 /// keyframe while the window is read, once it is read, every kBuildPollEvery residual blocks
