@@ -187,7 +187,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"init_refusals\": " << tc.init_refusals
     << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal)
     << ", \"tracked\": " << tc.tracked << ", \"lost\": " << tc.lost
-    << ", \"wide_searches\": " << tc.wide_searches;
+    << ", \"wide_searches\": " << tc.wide_searches
+    << ", \"segment_start_waits\": " << tc.segment_start_waits
+    << ", \"segment_starts_not_queued\": " << tc.segment_starts_not_queued
+    << ", \"segment_starts_refused\": " << tc.segment_starts_refused;
   const double nt = tc.tracked > 0 ? static_cast<double>(tc.tracked) : 1.0;
   j << ", \"mean_inliers\": " << num(static_cast<double>(tc.sum_inliers) / nt)
     << ", \"mean_query_temporal\": " << num(static_cast<double>(tc.sum_query_temporal) / nt)
@@ -217,6 +220,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"keyframes_deferred\": " << st.keyframes_deferred
     << ", \"depth_backend\": " << json_string(st.depth_backend)
     << ", \"keyframe_jobs\": " << m.keyframes << ", \"keyframe_failures\": " << m.failures
+    << ", \"segment_starts\": " << m.segment_starts << ", \"start_points\": " << m.start_points
     << ", \"new_points\": " << m.new_points << ", \"observations\": " << m.observations
     << ", \"fused_observations\": " << m.fused_observations
     << ", \"merged_points\": " << m.merged_points

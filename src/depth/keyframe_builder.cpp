@@ -560,10 +560,69 @@ const map::KeyframeJob& KeyframeBuilder::resolve_merged_segment(const map::Keyfr
   return merged_job_;
 }
 
+KeyframeBuildReport KeyframeBuilder::insert_segment_start(const map::KeyframeJob& job) {
+  const map::SegmentStart& st = job.start;
+  KeyframeBuildReport rep;
+  rep.segment_start = true;
+  const bool mono = st.num_views == 2;
+  // Monocular: the reference view is the world frame and the job's frame the second view;
+  // RGB-D: the job's frame alone.
+  const auto n = static_cast<std::size_t>(job.num_keypoints);
+  map::KeyframeInput cur;
+  cur.segment = job.segment;
+  cur.seq = job.seq;
+  cur.t_ns = job.t_ns;
+  cur.T_w_c = job.T_w_c;
+  cur.keypoints = std::span<const features::Keypoint>(job.keypoints.data(), n);
+  cur.descriptors = std::span<const features::Descriptor>(job.descriptors.data(), n);
+  cur.depth = std::span<const float>(st.depth.data(), n);
+  cur.depth_confidence = std::span<const float>(st.confidence.data(), n);
+  const auto m = static_cast<std::size_t>(mono ? st.ref_num_keypoints : 0);
+  map::KeyframeInput ref;
+  ref.segment = job.segment;
+  ref.seq = st.ref_seq;
+  ref.t_ns = st.ref_t_ns;
+  ref.T_w_c = SE3d::Identity();
+  ref.keypoints = std::span<const features::Keypoint>(st.ref_keypoints.data(), m);
+  ref.descriptors = std::span<const features::Descriptor>(st.ref_descriptors.data(), m);
+  ref.depth = std::span<const float>(st.ref_depth.data(), m);
+  ref.depth_confidence = std::span<const float>(st.ref_confidence.data(), m);
+  const Result<map::KeyframeId> first = map_.add_keyframe(mono ? ref : cur);
+  const Result<map::KeyframeId> second =
+      mono && first.is_ok() ? map_.add_keyframe(cur) : Result<map::KeyframeId>(first);
+  if (!first.is_ok() || !second.is_ok()) {
+    MER_LOG_ERROR("map segment %u: its start could not be inserted: %s", unsigned{job.segment},
+                  (!first.is_ok() ? first.status() : second.status()).message().c_str());
+    ++totals_.failures;
+    map_.publish_segment_start(job.segment, map::SegmentStartState::kRefused, map::kNoId,
+                               map::kNoId);
+    return rep;
+  }
+  int added = 0;
+  for (int i = 0; i < st.num_points; ++i) {
+    const auto ui = static_cast<std::size_t>(i);
+    const Result<map::PointId> p =
+        map_.add_point(st.points_w[ui], first.value(), st.first_keypoint[ui]);
+    if (!p.is_ok()) break;
+    if (mono) (void)map_.add_observation(p.value(), second.value(), st.second_keypoint[ui]);
+    map_.update_point(p.value());
+    ++added;
+  }
+  if (mono) map_.update_covisibility(second.value());
+  map_.publish_segment_start(job.segment, map::SegmentStartState::kInserted, first.value(),
+                             second.value());
+  rep.keyframe = second.value();
+  rep.new_points = added;
+  ++totals_.segment_starts;
+  totals_.start_points += static_cast<std::uint64_t>(added);
+  return rep;
+}
+
 KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) {
   // The whole pass is one writer section: depth inference reads writer-side state
   // (observations of the neighbours' points) and the insertion must see it unchanged.
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
+  if (tracked.kind == map::KeyframeJobKind::kSegmentStart) return insert_segment_start(tracked);
   const map::KeyframeJob& job = resolve_merged_segment(tracked);
   const auto t0 = std::chrono::steady_clock::now();
   KeyframeBuildReport rep;

@@ -32,7 +32,9 @@ namespace mer::depth {
 
 /// What one keyframe creation did.
 struct KeyframeBuildReport {
-  bool ok = false;
+  bool ok = false;             ///< a tracked keyframe was inserted (local BA and culling follow)
+  bool segment_start = false;  ///< the job was a segment's start (inserted as initialization
+                               ///< made it; no local BA or culling follows)
   std::uint32_t keyframe = 0xFFFFFFFFu;  ///< new keyframe id
   int tracked_observations = 0;          ///< 3D-2D edges from tracked map-points
   int fused_observations = 0;            ///< of these, found by projecting covisible points
@@ -67,6 +69,8 @@ struct KeyframeBuildTotals {
   std::uint64_t depth_missing = 0;        ///< keyframes the backend had no input for (no depth map)
   std::uint64_t depth_errors = 0;         ///< keyframes whose depth inference failed otherwise
   std::uint64_t merged_segment_jobs = 0;  ///< tracked in a segment merged since: moved first
+  std::uint64_t segment_starts = 0;       ///< segments' first keyframes and points inserted
+  std::uint64_t start_points = 0;         ///< points those starts brought
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -88,7 +92,9 @@ class KeyframeBuilder {
   /// `external` without a depth map source.
   Status init();
 
-  /// Creates one keyframe. Takes the map's writer lock (the caller must not hold it).
+  /// Creates one keyframe, or inserts a segment's start (KeyframeJobKind::kSegmentStart: its
+  /// keyframes and points as given, then Map::publish_segment_start). Takes the map's writer
+  /// lock (the caller must not hold it).
   KeyframeBuildReport spin_once(const map::KeyframeJob& tracked);
 
   const KeyframeBuildTotals& totals() const { return totals_; }
@@ -103,6 +109,8 @@ class KeyframeBuilder {
   /// `tracked`, or when its segment merged into another since it was tracked, a copy (merged_job_)
   /// in the frame and segment it joined. Writer-lock holders only.
   const map::KeyframeJob& resolve_merged_segment(const map::KeyframeJob& tracked);
+  /// Writes a segment's start (kind kSegmentStart) and publishes it. Writer-lock holders only.
+  KeyframeBuildReport insert_segment_start(const map::KeyframeJob& job);
   /// The newest live keyframe of `segment` (kNoId when it has none yet).
   map::KeyframeId newest_in_segment(std::uint16_t segment) const;
   void pick_neighbours(const map::KeyframeJob& job);

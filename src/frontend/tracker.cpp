@@ -137,6 +137,7 @@ Status Tracker::init() {
   inlier_y_.assign(nk, 0.0F);
   kp_point_.assign(nk, map::kNoId);
   kp_point_gen_.assign(nk, map::kNoGeneration);
+  start_.reserve(max_kp);
   recent_.assign(static_cast<std::size_t>(opts_.temporal_frames), KeyframeHistogram{});
   qt_keyframes_.reserve(kMaxRecentKeyframes);
   depth_scratch_.reserve(std::max(nk, static_cast<std::size_t>(opts_.focal.max_frames) + 1024));
@@ -654,7 +655,7 @@ void Tracker::fill_relocalization_request(const hal::Frame& frame,
 }
 
 void Tracker::set_relocalization_hint(const RelocalizationHint& hint) {
-  if (!hint.valid ||
+  if (!hint.valid || start_pending_ ||
       (state_ != TrackerState::kRelocalizing && state_ != TrackerState::kNewSegment)) {
     return;
   }
@@ -820,7 +821,54 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
 }
 
 void Tracker::keyframe_not_queued() {
+  if (start_to_queue_) {
+    // The segment's start found no free job: initialize again from the next frames (the
+    // reference is kept).
+    start_to_queue_ = false;
+    start_pending_ = false;
+    initialized_ = false;
+    have_pose_ = false;
+    ++counters_.segment_starts_not_queued;
+    return;
+  }
   force_keyframe_ = true;
+}
+
+void Tracker::begin_segment_start(TrackingResult& r) {
+  start_to_queue_ = true;
+  start_pending_ = true;
+  r.is_keyframe = true;
+  r.keyframe_job = true;
+  r.keyframe_reason = static_cast<std::uint8_t>(KeyframeReason::kInitialization);
+  last_reason_ = r.keyframe_reason;
+}
+
+Tracker::StartPoll Tracker::poll_segment_start() {
+  const map::SegmentStartRecord rec = map_.segment_start(segment_);
+  if (rec.state == map::SegmentStartState::kPending) return StartPoll::kPending;
+  start_pending_ = false;
+  if (rec.state == map::SegmentStartState::kRefused) {
+    // Never written (map full): this segment id holds nothing; initialize the next one.
+    ++counters_.segment_starts_refused;
+    MER_LOG_WARN("map segment %u: its start was refused by the map; starting segment %u",
+                 unsigned{segment_}, unsigned{segments_started_});
+    if (segments_started_ >= opts_.max_segments) return StartPoll::kRefused;
+    segment_ = segments_started_++;
+    initialized_ = false;
+    ref_valid_ = false;
+    have_pose_ = false;
+    poor_prediction_ = true;
+    return StartPoll::kRefused;
+  }
+  // In the map: the tracked-point histogram of the start frame (every point was made in the
+  // first keyframe) and the anchor for the frames that follow.
+  histogram_.clear();
+  for (int i = 0; i < start_.num_points; ++i) histogram_.add(rec.first);
+  recent_[recent_next_] = histogram_;
+  recent_next_ = (recent_next_ + 1) % recent_.size();
+  anchor_kf_ = rec.last;
+  anchor_generation_ = map_.keyframe_generation(rec.last);
+  return StartPoll::kInserted;
 }
 
 void Tracker::stop_reading() {
@@ -839,6 +887,35 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   job.num_keypoints = n;
   std::copy_n(kps_.begin(), n, job.keypoints.begin());
   std::copy_n(descs_.begin(), n, job.descriptors.begin());
+  if (start_to_queue_) {
+    // The segment's start: its keyframes and points, as initialization made them.
+    job.kind = map::KeyframeJobKind::kSegmentStart;
+    map::SegmentStart& st = job.start;
+    const auto un = static_cast<std::size_t>(n);
+    st.num_views = start_.num_views;
+    st.ref_seq = start_.ref_seq;
+    st.ref_t_ns = start_.ref_t_ns;
+    st.ref_num_keypoints = 0;
+    if (start_.num_views == 2) {
+      const int m = std::min(start_.ref_num_keypoints, static_cast<int>(st.ref_keypoints.size()));
+      st.ref_num_keypoints = m;
+      std::copy_n(ref_kps_.begin(), m, st.ref_keypoints.begin());
+      std::copy_n(ref_descs_.begin(), m, st.ref_descriptors.begin());
+      std::copy_n(start_.ref_depth.begin(), m, st.ref_depth.begin());
+      std::copy_n(start_.ref_confidence.begin(), m, st.ref_confidence.begin());
+    }
+    std::copy_n(start_.depth.begin(), un, st.depth.begin());
+    std::copy_n(start_.confidence.begin(), un, st.confidence.begin());
+    const int np = std::min(start_.num_points, static_cast<int>(st.points_w.size()));
+    st.num_points = np;
+    std::copy_n(start_.points_w.begin(), np, st.points_w.begin());
+    std::copy_n(start_.first_keypoint.begin(), np, st.first_keypoint.begin());
+    std::copy_n(start_.second_keypoint.begin(), np, st.second_keypoint.begin());
+    job.has_sensor_depth = false;
+    job.num_recent = 0;
+    return;
+  }
+  job.kind = map::KeyframeJobKind::kTracked;
   std::copy_n(kp_point_.begin(), n, job.point_ids.begin());
   std::copy_n(kp_point_gen_.begin(), n, job.point_gens.begin());
   job.has_sensor_depth = !frame.depth.empty();
@@ -988,73 +1065,41 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
     return false;
   }
 
-  // Two keyframes: the reference (world frame) and this frame.
+  // Two keyframes: the reference (world frame) and this frame, with the points triangulated
+  // in the reference. Keyframe creation writes them to the map (the tracking thread never
+  // takes the map's writer lock); tracking resumes once they are in (poll_segment_start).
   const SE3d T_w_c1 = orthonormalized(tv.T_c1_c0).inverse();
-  std::vector<float> depth0(ref_kps_.size(), 0.0F);
-  std::vector<float> depth1(kps_.size(), 0.0F);
-  std::vector<float> conf0(ref_kps_.size(), 0.0F);
-  std::vector<float> conf1(kps_.size(), 0.0F);
-  for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
-    if (tv.triangulated[i] == 0) continue;
-    const Eigen::Vector3d& X = tv.points_c0[i];
-    depth0[static_cast<std::size_t>(init_ref_idx_[i])] = static_cast<float>(X.z());
-    depth1[static_cast<std::size_t>(init_cur_idx_[i])] = static_cast<float>((tv.T_c1_c0 * X).z());
-    conf0[static_cast<std::size_t>(init_ref_idx_[i])] = 1.0F;
-    conf1[static_cast<std::size_t>(init_cur_idx_[i])] = 1.0F;
-  }
-  // The map may have other writers by now (a later segment): never wait for them.
-  const std::unique_lock<platform::PiMutex> lock(map_.writer_lock(), std::try_to_lock);
-  if (!lock.owns_lock()) {
-    MER_LOG_DEBUG("frame %llu: initialization deferred (map busy)",
-                  static_cast<unsigned long long>(frame.seq));
-    return false;
-  }
-  map::KeyframeInput k0;
-  k0.segment = segment_;
-  k0.seq = ref_seq_;
-  k0.t_ns = ref_t_ns_;
-  k0.T_w_c = SE3d::Identity();
-  k0.keypoints = ref_kps_;
-  k0.descriptors = ref_descs_;
-  k0.depth = depth0;
-  k0.depth_confidence = conf0;
-  map::KeyframeInput k1;
-  k1.segment = segment_;
-  k1.seq = frame.seq;
-  k1.t_ns = frame.t_ns;
-  k1.T_w_c = T_w_c1;
-  k1.keypoints = kps_;
-  k1.descriptors = descs_;
-  k1.depth = depth1;
-  k1.depth_confidence = conf1;
-  const Result<map::KeyframeId> kf0 = map_.add_keyframe(k0);
-  const Result<map::KeyframeId> kf1 = map_.add_keyframe(k1);
-  if (!kf0.is_ok() || !kf1.is_ok()) {
-    MER_LOG_ERROR("initialization: %s",
-                  (!kf0.is_ok() ? kf0.status() : kf1.status()).message().c_str());
-    return false;
-  }
-  std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
-  histogram_.clear();
+  std::fill_n(start_.ref_depth.begin(), ref_kps_.size(), 0.0F);
+  std::fill_n(start_.ref_confidence.begin(), ref_kps_.size(), 0.0F);
+  std::fill_n(start_.depth.begin(), kps_.size(), 0.0F);
+  std::fill_n(start_.confidence.begin(), kps_.size(), 0.0F);
   depth_scratch_.clear();
   int ni = 0;
   for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
     if (tv.triangulated[i] == 0) continue;
-    const Result<map::PointId> p =
-        map_.add_point(tv.points_c0[i], kf0.value(), static_cast<std::uint32_t>(init_ref_idx_[i]));
-    if (!p.is_ok()) break;
-    const auto k = static_cast<std::uint32_t>(init_cur_idx_[i]);
-    (void)map_.add_observation(p.value(), kf1.value(), k);
-    map_.update_point(p.value());
-    kp_point_[k] = p.value();
-    kp_point_gen_[k] = map_.point_generation(p.value());
-    histogram_.add(kf0.value());
-    inlier_x_[static_cast<std::size_t>(ni)] = kps_[k].x;
-    inlier_y_[static_cast<std::size_t>(ni)] = kps_[k].y;
+    const Eigen::Vector3d& X = tv.points_c0[i];
+    const auto k0 = static_cast<std::size_t>(init_ref_idx_[i]);
+    const auto k = static_cast<std::size_t>(init_cur_idx_[i]);
+    const double z1 = (tv.T_c1_c0 * X).z();
+    start_.ref_depth[k0] = static_cast<float>(X.z());
+    start_.depth[k] = static_cast<float>(z1);
+    start_.ref_confidence[k0] = 1.0F;
+    start_.confidence[k] = 1.0F;
+    const auto ui = static_cast<std::size_t>(ni);
+    start_.points_w[ui] = X;
+    start_.first_keypoint[ui] = static_cast<std::uint32_t>(k0);
+    start_.second_keypoint[ui] = static_cast<std::uint32_t>(k);
+    inlier_x_[ui] = kps_[k].x;
+    inlier_y_[ui] = kps_[k].y;
     ++ni;
-    depth_scratch_.push_back((tv.T_c1_c0 * tv.points_c0[i]).z());
+    depth_scratch_.push_back(z1);
   }
-  map_.update_covisibility(kf1.value());
+  start_.num_points = ni;
+  start_.num_views = 2;
+  start_.ref_seq = ref_seq_;
+  start_.ref_t_ns = ref_t_ns_;
+  start_.ref_num_keypoints = static_cast<int>(ref_kps_.size());
+  begin_segment_start(r);
   median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   T_c_w_ = orthonormalized(tv.T_c1_c0);
   velocity_ = SE3d::Identity();
@@ -1069,16 +1114,16 @@ bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
   counters_.initialized = true;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
-  recent_[recent_next_] = histogram_;
-  recent_next_ = (recent_next_ + 1) % recent_.size();
   r.state = TrackState::kTracked;
   r.T_w_c = T_w_c1;
-  r.is_keyframe = true;
-  r.keyframe_reason = static_cast<std::uint8_t>(KeyframeReason::kInitialization);
   r.num_inliers = ni;
   r.num_matches = m;
   r.focal = K_.fx;
   last_T_w_c_ = T_w_c1;
+  // Anchored to its own keyframe (made by the job).
+  r.has_anchor = true;
+  r.anchor_t_ns = frame.t_ns;
+  r.T_kf_c = T_w_c1.inverse() * T_w_c1;
   ++counters_.tracked;
   if (tv.model == geometry::TwoViewModel::kEssential) {
     MER_LOG_INFO(
@@ -1110,54 +1155,32 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
     (void)focal_from_reference(m);
     if (focal_.estimates < opts_.focal.min_init_estimates) return false;
   }
-  std::vector<float> depth(kps_.size(), 0.0F);
-  std::vector<float> conf(kps_.size(), 0.0F);
+  // One keyframe, this frame (the world frame), with a point per keypoint with depth;
+  // keyframe creation writes them to the map (as in initialize_mono).
+  std::fill_n(start_.depth.begin(), kps_.size(), 0.0F);
+  std::fill_n(start_.confidence.begin(), kps_.size(), 0.0F);
   int valid = 0;
   for (std::size_t i = 0; i < kps_.size(); ++i) {
     const float d = sample_depth(frame.depth, kps_[i].x, kps_[i].y, opts_.rgbd_max_depth_step);
     if (d < kRgbdMinDepthM || d > kRgbdMaxDepthM) continue;
-    depth[i] = d;
-    conf[i] = 1.0F;
+    start_.depth[i] = d;
+    start_.confidence[i] = 1.0F;
     ++valid;
   }
   if (valid < opts_.init.rgbd_min_points) return false;
-  // The map may have other writers by now (a later segment): never wait for them.
-  const std::unique_lock<platform::PiMutex> lock(map_.writer_lock(), std::try_to_lock);
-  if (!lock.owns_lock()) {
-    MER_LOG_DEBUG("frame %llu: initialization deferred (map busy)",
-                  static_cast<unsigned long long>(frame.seq));
-    return false;
-  }
-  map::KeyframeInput k0;
-  k0.segment = segment_;
-  k0.seq = frame.seq;
-  k0.t_ns = frame.t_ns;
-  k0.T_w_c = SE3d::Identity();
-  k0.keypoints = kps_;
-  k0.descriptors = descs_;
-  k0.depth = depth;
-  k0.depth_confidence = conf;
-  const Result<map::KeyframeId> kf0 = map_.add_keyframe(k0);
-  if (!kf0.is_ok()) {
-    MER_LOG_ERROR("initialization: %s", kf0.status().message().c_str());
-    return false;
-  }
-  std::fill_n(kp_point_.begin(), kps_.size(), map::kNoId);
-  histogram_.clear();
   depth_scratch_.clear();
   int ni = 0;
   for (std::size_t i = 0; i < kps_.size(); ++i) {
-    if (depth[i] <= 0.0F) continue;
-    const Eigen::Vector3d X = K_.unproject({kps_[i].x, kps_[i].y}) * depth[i];
-    const Result<map::PointId> p = map_.add_point(X, kf0.value(), static_cast<std::uint32_t>(i));
-    if (!p.is_ok()) break;
-    map_.update_point(p.value());
-    kp_point_[i] = p.value();
-    kp_point_gen_[i] = map_.point_generation(p.value());
-    histogram_.add(kf0.value());
-    depth_scratch_.push_back(depth[i]);
+    if (start_.depth[i] <= 0.0F) continue;
+    const auto ui = static_cast<std::size_t>(ni);
+    start_.points_w[ui] = K_.unproject({kps_[i].x, kps_[i].y}) * start_.depth[i];
+    start_.first_keypoint[ui] = static_cast<std::uint32_t>(i);
+    depth_scratch_.push_back(start_.depth[i]);
     ++ni;
   }
+  start_.num_points = ni;
+  start_.num_views = 1;
+  begin_segment_start(r);
   median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
   T_c_w_ = SE3d::Identity();
   velocity_ = SE3d::Identity();
@@ -1171,15 +1194,14 @@ bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
   counters_.initialized = true;
   fix_focal_at_init(frame.seq);
   policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
-  recent_[recent_next_] = histogram_;
-  recent_next_ = (recent_next_ + 1) % recent_.size();
   r.state = TrackState::kTracked;
   r.T_w_c = SE3d::Identity();
-  r.is_keyframe = true;
-  r.keyframe_reason = static_cast<std::uint8_t>(KeyframeReason::kInitialization);
   r.num_inliers = ni;
   r.focal = K_.fx;
   last_T_w_c_ = r.T_w_c;
+  r.has_anchor = true;  // anchored to its own keyframe (made by the job)
+  r.anchor_t_ns = frame.t_ns;
+  r.T_kf_c = r.T_w_c.inverse() * r.T_w_c;
   ++counters_.tracked;
   MER_LOG_INFO("initialized (RGB-D) at frame %llu with %d points",
                static_cast<unsigned long long>(frame.seq), ni);
@@ -1306,6 +1328,20 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
   }
   // A relocalizer's pose against another segment's keyframe (lost in a new segment, or
   // relocalizing in one) returns to the segment it was found in.
+  start_to_queue_ = false;  // the last frame's start was queued (or keyframe_not_queued said not)
+  if (start_pending_) {
+    // The segment's first keyframes are not in the map yet (threaded: keyframe creation is
+    // busy): no pose for this frame; the next one tries again.
+    const StartPoll poll = poll_segment_start();
+    if (poll != StartPoll::kInserted) {
+      if (poll == StartPoll::kPending) ++counters_.segment_start_waits;
+      r.state = TrackState::kNotInitialized;
+      state_ = segments_started_ == 1 ? TrackerState::kInitializing : TrackerState::kNewSegment;
+      r.tracker_state = state_;
+      r.segment = segment_;
+      return r;
+    }
+  }
   const std::uint16_t segment_before = segment_;
   const bool initialized_before = initialized_;
   const bool returning =
@@ -1320,8 +1356,7 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     } else {
       (void)initialize_mono(frame, r);
     }
-    if (r.state == TrackState::kTracked) set_anchor(r);
-    advance_state(r);
+    advance_state(r);  // (a start anchors its frame to its own keyframe)
     return r;
   }
   const bool tracked = track(frame, r);

@@ -22,11 +22,11 @@
 /// Threading: reads the map lock-free as a registered reader (map.h, slot reclamation): each
 /// spin_once() starts with a quiescent point, and the ids it keeps across frames are either
 /// re-checked (recent keyframes) or handed on with their generation (keyframe jobs). Its map
-/// writes are the initialization of a segment (the first keyframes and points) and the
-/// per-point visible / found statistics (relaxed atomic adds). It never waits for the map's
-/// writer lock: an initialization takes it with try_lock (uncontended for the first
-/// segment, before any keyframe job) and, when another writer holds it, is retried with the
-/// next frame.
+/// writes are the per-point visible / found statistics (relaxed atomic adds); it never takes
+/// the map's writer lock. An initialization hands the segment's first keyframes and points to
+/// keyframe creation as a job (KeyframeJobKind::kSegmentStart), as every other keyframe, and
+/// tracking resumes with the first frame that finds them in the map (Map::segment_start; in
+/// lockstep, the next frame; threaded, frames before it have no pose).
 /// After init, spin_once() does not allocate.
 
 #include <array>
@@ -108,6 +108,9 @@ struct TrackerCounters {
   std::uint64_t relocalization_rejected_lost = 0;   ///< refused: a confirming frame was lost
   std::uint64_t relocalization_rejected_found = 0;  ///< refused: a confirming frame found too
                                                     ///< few of the map-points in its view
+  std::uint64_t segment_start_waits = 0;  ///< frames without a pose: the start not in the map yet
+  std::uint64_t segment_starts_not_queued = 0;  ///< starts that found no free keyframe job
+  std::uint64_t segment_starts_refused = 0;     ///< starts the map could not take (full)
   std::uint64_t sum_query_temporal = 0;
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
@@ -192,6 +195,13 @@ class Tracker {
   /// an earlier segment: the keyframe relocalized against); none when neither is live.
   void set_anchor(TrackingResult& r);
   bool track(const hal::Frame& frame, TrackingResult& r);
+  /// Hands the segment's start (start_, filled by an initialization) to keyframe creation:
+  /// r asks for a keyframe job, which fill_keyframe_job fills from start_.
+  void begin_segment_start(TrackingResult& r);
+  enum class StartPoll : std::uint8_t { kPending, kInserted, kRefused };
+  /// Whether keyframe creation has written the segment's start: kInserted (tracking resumes
+  /// from it), kPending, or kRefused (the next segment is initialized).
+  StartPoll poll_segment_start();
   bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
   bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
   void set_reference(const hal::Frame& frame);
@@ -303,6 +313,10 @@ class Tracker {
   std::vector<std::int32_t> init_cur_idx_;
   std::vector<double> focal_estimates_;
   int focal_stable_count_ = 0;
+  // The segment's start handed to keyframe creation: its keyframes' depths and points.
+  map::SegmentStart start_;
+  bool start_to_queue_ = false;  // the frame just tracked asks for the start's job
+  bool start_pending_ = false;   // the start is not in the map yet
 
   // Keyframe decided last (for fill_keyframe_job).
   SE3d last_T_w_c_ = SE3d::Identity();

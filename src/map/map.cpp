@@ -63,8 +63,10 @@ Map::Map(const MapOptions& opts)
   const std::size_t n_kp = std::size_t{max_kf_} * max_kp_;
   for (std::size_t i = 0; i < n_kp; ++i) kf_points_[i].store(kNoId, std::memory_order_relaxed);
   std::fill_n(point_cell_.get(), max_pts_, kNoCell);
-  for (std::uint32_t i = 0; i < kMaxSegments; ++i)
+  for (std::uint32_t i = 0; i < kMaxSegments; ++i) {
     merged_into_[i].store(kNoSegment, std::memory_order_relaxed);
+    start_state_[i].store(SegmentStartState::kPending, std::memory_order_relaxed);
+  }
 }
 
 // ---- writer ------------------------------------------------------------------------------
@@ -231,6 +233,24 @@ std::uint32_t Map::merge_segment(std::uint16_t from, std::uint16_t into,
   merged_into_[from].store(into, std::memory_order_release);
   publish_correction(from, S);
   return moved;
+}
+
+void Map::publish_segment_start(std::uint16_t segment, SegmentStartState state, KeyframeId first,
+                                KeyframeId last) noexcept {
+  if (segment >= kMaxSegments ||
+      start_state_[segment].load(std::memory_order_relaxed) != SegmentStartState::kPending) {
+    return;
+  }
+  starts_[segment] = SegmentStartRecord{state, first, last};
+  start_state_[segment].store(state, std::memory_order_release);
+}
+
+SegmentStartRecord Map::segment_start(std::uint16_t segment) const noexcept {
+  if (segment >= kMaxSegments ||
+      start_state_[segment].load(std::memory_order_acquire) == SegmentStartState::kPending) {
+    return SegmentStartRecord{};
+  }
+  return starts_[segment];
 }
 
 bool Map::segment_merge(std::uint16_t segment, SegmentMerge& out) const noexcept {

@@ -12,10 +12,10 @@
 ///    adjustment and culling (back-end thread, high priority) and offline steps (final BA).
 ///    The lock orders them: each writer sees everything earlier holders wrote, so writer-side
 ///    state needs no atomics. The writer methods themselves never block. The tracking thread
-///    NEVER waits for the lock: it only reads (below), except when it initializes a map
-///    segment (the first keyframes and points), which it does under try_lock() and retries
-///    with a later frame when another writer holds the lock. A program with one writer
-///    thread only (unit tests, offline tools) need not take the lock.
+///    NEVER takes the lock: it only reads (below); even a segment's first keyframes and points
+///    are written by the keyframe builder (publish_segment_start tells the tracker they are
+///    in). A program with one writer thread only (unit tests, offline tools) need not take
+///    the lock.
 ///  - A writer that drops the lock in the middle of its work (local BA releases it while
 ///    Ceres solves) holds only ids with their generations across the gap and revalidates
 ///    them when it takes the lock again: another writer may have added, moved or freed
@@ -149,6 +149,21 @@ struct KeyframeInput {
   std::uint16_t segment = 0;  ///< map segment (frontend: a new one after a long lost spell)
 };
 
+/// Where a map segment's start (its first keyframes and points, made by the tracker's
+/// initialization and inserted by keyframe creation) stands (Map::segment_start).
+enum class SegmentStartState : std::uint8_t {
+  kPending,   ///< not inserted yet (or never asked for)
+  kInserted,  ///< in the map: `first` .. `last` are its keyframes
+  kRefused,   ///< could not be inserted (map full); the segment holds nothing
+};
+
+/// A segment's start as keyframe creation published it.
+struct SegmentStartRecord {
+  SegmentStartState state = SegmentStartState::kPending;
+  KeyframeId first = kNoId;  ///< its first keyframe (the world frame)
+  KeyframeId last = kNoId;   ///< its last keyframe (the initialization's frame)
+};
+
 /// A map segment that joined another (Map::merge_segment): immutable once recorded.
 struct SegmentMerge {
   std::uint16_t into = kNoSegment;  ///< the segment it joined
@@ -268,6 +283,12 @@ class Map {
   /// merged, or a non-finite similarity.
   std::uint32_t merge_segment(std::uint16_t from, std::uint16_t into,
                               const geometry::Sim3d& S_into_from);
+  /// Records that `segment`'s start is in the map (first and last keyframe; kInserted) or
+  /// could not be inserted (kRefused, ids kNoId), once per segment, after its keyframes and
+  /// points are written: a reader that sees the record (segment_start) sees them too.
+  /// Ignored for a segment id of kMaxSegments or more.
+  void publish_segment_start(std::uint16_t segment, SegmentStartState state, KeyframeId first,
+                             KeyframeId last) noexcept;
   /// Sets the depth / confidence of one keypoint (depth refinement after publication).
   void set_keyframe_depth(KeyframeId kf, std::uint32_t kp, float depth, float confidence);
   /// Frees a point: not live (generation incremented), removed from its cell, its keypoint
@@ -367,6 +388,9 @@ class Map {
   /// The merge of `segment` into another (acquire; any thread); false when it never merged
   /// (or the id is out of range). Follow `into` for later merges.
   bool segment_merge(std::uint16_t segment, SegmentMerge& out) const noexcept;
+  /// How the start of `segment` stands (acquire; any thread): kPending until keyframe creation
+  /// has inserted or refused it (publish_segment_start), and for an id out of range.
+  SegmentStartRecord segment_start(std::uint16_t segment) const noexcept;
   /// The segment `segment` ended up in after every merge (itself when it never merged) and
   /// the similarity from its world frame to that one's (composed along the merges).
   std::uint16_t merged_segment(std::uint16_t segment,
@@ -569,6 +593,11 @@ class Map {
   std::unique_ptr<std::atomic<std::uint16_t>[]> merged_into_ =
       std::make_unique<std::atomic<std::uint16_t>[]>(kMaxSegments);
   std::unique_ptr<SegmentMerge[]> merges_ = std::make_unique<SegmentMerge[]>(kMaxSegments);
+  // kMaxSegments: each segment's start (state release-published after its keyframe ids).
+  std::unique_ptr<std::atomic<SegmentStartState>[]> start_state_ =
+      std::make_unique<std::atomic<SegmentStartState>[]>(kMaxSegments);
+  std::unique_ptr<SegmentStartRecord[]> starts_ =
+      std::make_unique<SegmentStartRecord[]>(kMaxSegments);
   // Writer side copies of each segment's cumulative correction.
   std::unique_ptr<geometry::Sim3d[]> correction_own_ =
       std::make_unique<geometry::Sim3d[]>(kMaxSegments);

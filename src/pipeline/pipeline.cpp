@@ -360,7 +360,8 @@ void Pipeline::run_final_ba() {
 depth::KeyframeBuildReport Pipeline::build_keyframe(const map::KeyframeJob& job) {
   const std::int64_t t_kf = platform::monotonic_now_ns();
   const depth::KeyframeBuildReport rep = builder_->spin_once(job);
-  lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
+  // (A segment's start is an insertion only: not a keyframe's creation time.)
+  if (!rep.segment_start) lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
   return rep;
 }
 
@@ -385,6 +386,7 @@ void Pipeline::optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole&
 
 void Pipeline::create_keyframe(const map::KeyframeJob& job) {
   const depth::KeyframeBuildReport rep = build_keyframe(job);
+  if (rep.segment_start) return;  // a segment's start: nothing to optimize or cull yet
   // Culling frees slots for the next keyframes; after a refused insertion (map full) it
   // still runs around the newest keyframe.
   optimize_and_cull(rep.ok ? rep.keyframe : map::kNoId, job.K, job.seq,
@@ -727,6 +729,10 @@ Status Pipeline::run_threaded() {
           }
           const map::KeyframeJob& job = jobs_[slot];
           const depth::KeyframeBuildReport rep = build_keyframe(job);
+          if (rep.segment_start) {  // a segment's start: nothing to optimize or cull yet
+            (void)free_ring->try_push(slot);
+            return;
+          }
           BackendJob b;
           b.inserted = rep.ok;
           // After a refused insertion (map full) culling still runs, around the newest.

@@ -56,8 +56,10 @@ class RelocRig {
   /// Frame i's true pose in the map's world frame (the first frame's camera).
   SE3d truth_in_map(int i) const { return T_map_gt_ * truth(i); }
 
-  /// Renders and tracks frame i (black when `black`), building keyframes as the pipeline does.
-  TrackingResult step(int i, bool black = false) {
+  /// Renders and tracks frame i (black when `black`), building keyframes as the pipeline does;
+  /// with `build` false a keyframe job is only queued (filled), as when keyframe creation is
+  /// busy on its thread: build_queued() runs it.
+  TrackingResult step(int i, bool black = false, bool build = true) {
     frame_.seq = static_cast<std::uint64_t>(i);
     frame_.t_ns = static_cast<std::int64_t>(static_cast<double>(i) / kFps * 1e9);
     frame_.has_ground_truth = true;
@@ -71,10 +73,19 @@ class RelocRig {
     if (i == 0 && r.state == TrackState::kTracked) T_map_gt_ = r.T_w_c * truth(0).inverse();
     if (r.keyframe_job) {
       tracker_->fill_keyframe_job(frame_, job_);
-      const depth::KeyframeBuildReport rep = builder_->spin_once(job_);
-      if (rep.ok) (void)ba_->spin_once(rep.keyframe, job_.K);
+      queued_ = true;
+      if (build) build_queued();
     }
     return r;
+  }
+
+  /// Creates the keyframe of the job queued last (and its local BA); false when none is queued.
+  bool build_queued() {
+    if (!queued_) return false;
+    queued_ = false;
+    const depth::KeyframeBuildReport rep = builder_->spin_once(job_);
+    if (rep.ok) (void)ba_->spin_once(rep.keyframe, job_.K);
+    return true;
   }
 
   /// Hands the tracker a relocalizer's pose for frame i (camera-to-world in the map frame),
@@ -104,6 +115,7 @@ class RelocRig {
   std::unique_ptr<depth::KeyframeBuilder> builder_;
   std::unique_ptr<backend::LocalBundleAdjuster> ba_;
   map::KeyframeJob job_;
+  bool queued_ = false;  // job_ holds a job not built yet
   SE3d T_map_gt_ = SE3d::Identity();
 };
 

@@ -1,9 +1,13 @@
 // The tracker across map segments and relocalizer poses, on rendered RGB-D room_orbit frames
 // (reloc_rig.h): a pose against another segment's keyframe returns tracking to that segment,
-// a relocalizer's pose of an earlier frame is not taken as one frame's motion, and a loop
-// correction of another segment leaves the tracked pose alone.
+// a relocalizer's pose of an earlier frame is not taken as one frame's motion, a loop
+// correction of another segment leaves the tracked pose alone, and a segment's start is
+// written to the map by keyframe creation, never by the tracker.
+#include <atomic>
 #include <cmath>
+#include <mutex>
 #include <numbers>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -174,6 +178,42 @@ TEST(TrackerSegments, CorrectionOfAnotherSegmentIsNotFollowed) {
         << "frame " << i;
   }
   EXPECT_EQ(rig.counters().wide_searches, wide_before);
+}
+
+TEST(TrackerSegments, StartIsWrittenByKeyframeCreationNotByTheTracker) {
+  RelocRig rig(options());
+  // Another thread holds the map's writer lock (a loop correction, say) while the first frame
+  // initializes: the tracker must neither wait for it nor give up the start.
+  std::atomic<int> phase{0};
+  std::thread writer([&] {
+    const std::lock_guard<platform::PiMutex> lock(rig.map().writer_lock());
+    phase.store(1);
+    while (phase.load() != 2) std::this_thread::yield();
+  });
+  while (phase.load() != 1) std::this_thread::yield();
+  const TrackingResult r0 = rig.step(0, false, /*build=*/false);
+  phase.store(2);
+  writer.join();
+  EXPECT_EQ(r0.state, TrackState::kTracked);
+  EXPECT_TRUE(r0.keyframe_job);
+  EXPECT_EQ(rig.map().live_keyframes(), 0U) << "the tracker wrote the map itself";
+  // Keyframe creation has not run yet (busy on its thread): no pose, nothing lost.
+  const TrackingResult r1 = rig.step(1, false, /*build=*/false);
+  EXPECT_EQ(r1.state, TrackState::kNotInitialized);
+  EXPECT_FALSE(r1.keyframe_job);
+  EXPECT_EQ(rig.counters().segment_start_waits, 1U);
+  EXPECT_EQ(rig.map().segment_start(0).state, map::SegmentStartState::kPending);
+  // Once it has, tracking resumes from the start's keyframe and points.
+  ASSERT_TRUE(rig.build_queued());
+  const map::SegmentStartRecord start = rig.map().segment_start(0);
+  ASSERT_EQ(start.state, map::SegmentStartState::kInserted);
+  EXPECT_EQ(rig.map().live_keyframes(), 1U);
+  EXPECT_EQ(rig.map().keyframe_seq(start.last), 0U);
+  EXPECT_GT(rig.map().live_points(), 100U);
+  int tracked = 0;
+  for (int i = 2; i < 30; ++i) tracked += rig.step(i).state == TrackState::kTracked ? 1 : 0;
+  EXPECT_EQ(tracked, 28);
+  EXPECT_EQ(rig.counters().segment_start_waits, 1U);
 }
 
 }  // namespace
