@@ -76,7 +76,7 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
 
 }  // namespace
 
-AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
+AccuracyReport evaluate_run(const std::string& dir, SensorMode sensor_mode,
                             const pipeline::PipelineStats& stats, const std::string& trajectory,
                             int only_segment) {
   AccuracyReport a;
@@ -111,7 +111,8 @@ AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mo
     a.note = "fewer than 3 tracked frames";
     return a;
   }
-  const eval::Alignment al = sensor_mode == "rgbd" ? eval::Alignment::kSe3 : eval::Alignment::kSim3;
+  const eval::Alignment al =
+      sensor_mode == SensorMode::kRgbd ? eval::Alignment::kSe3 : eval::Alignment::kSim3;
   const eval::EvalResult r = eval::evaluate(gt, est.value(), pairs, al);
   a.available = true;
   a.alignment = eval::alignment_name(al);
@@ -343,7 +344,7 @@ Status write_final_trajectory(const std::string& dir,
   return write_file_atomic((d / "trajectory_final.txt").string(), text);
 }
 
-Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int max_iterations,
+Status run_gt_check(const std::string& dir, SensorMode sensor_mode, int max_iterations,
                     pipeline::Pipeline& pipe, eval::GroundTruthCheckReport& report,
                     AccuracyReport& converged, AccuracyReport& shuffled,
                     AccuracyReport& shuffled_detected) {
@@ -365,7 +366,7 @@ Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int 
   }
   constexpr std::uint64_t kShuffleSeed = 1;
   // A metric map (RGB-D) is aligned without scale, as its ATE is.
-  const bool with_scale = sensor_mode != "rgbd";
+  const bool with_scale = sensor_mode != SensorMode::kRgbd;
   const pipeline::Pipeline::FinishedMap m = pipe.finished_map();
   report = eval::check_against_groundtruth(m.map, m.ba, m.K, gt.value().poses, kMaxDtNs, with_scale,
                                            max_iterations, kShuffleSeed);

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "core/sensor_mode.h"
 #include "eval/groundtruth_check.h"
 #include "pipeline/pipeline.h"
 
@@ -36,7 +37,7 @@ struct AccuracyReport {
 /// With `only_segment` >= 0, only the frames frames.csv says were tracked in that map
 /// segment are scored (aligned on their own): a merged segment's own accuracy, read from
 /// the file it was joined into.
-AccuracyReport evaluate_run(const std::string& dir, const std::string& sensor_mode,
+AccuracyReport evaluate_run(const std::string& dir, SensorMode sensor_mode,
                             const pipeline::PipelineStats& stats,
                             const std::string& trajectory = "trajectory.txt",
                             int only_segment = -1);
@@ -109,7 +110,7 @@ Status write_final_trajectory(const std::string& dir,
 /// keypoint errors (keyframes_gt_shuffled.txt) and scores both as keyframes_final.txt is.
 /// A source without ground truth, or a check that cannot run, leaves its reason in
 /// `report.note` and is not an error; a file that cannot be written is.
-Status run_gt_check(const std::string& dir, const std::string& sensor_mode, int max_iterations,
+Status run_gt_check(const std::string& dir, SensorMode sensor_mode, int max_iterations,
                     pipeline::Pipeline& pipe, eval::GroundTruthCheckReport& report,
                     AccuracyReport& converged, AccuracyReport& shuffled,
                     AccuracyReport& shuffled_detected);

@@ -135,10 +135,20 @@ Status build_config(const CliArgs& args, SlamConfig& config) {
   if (!args.board_file.empty()) {
     if (Status s = options::load_yaml_file(args.board_file, config.board); !s.is_ok()) return s;
   }
-  if (args.mode) config.pipeline.mode = *args.mode;
+  if (args.mode) {
+    const Status s =
+        options::set_by_name("pipeline.mode", *args.mode,
+                             options::Names<SensorMode>{kSensorModeNames}, config.pipeline.mode);
+    if (!s.is_ok()) return Status(s.code(), "command line: " + s.message());
+  }
   if (args.lockstep) config.pipeline.lockstep = true;
   if (args.max_frames) config.pipeline.max_frames = *args.max_frames;
-  if (args.focal) config.pipeline.focal = *args.focal;
+  if (args.focal) {
+    const Status s = options::set_by_name(
+        "pipeline.focal", *args.focal,
+        options::Names<pipeline::FocalMode>{pipeline::kFocalModeNames}, config.pipeline.focal);
+    if (!s.is_ok()) return Status(s.code(), "command line: " + s.message());
+  }
   if (args.final_ba) config.pipeline.final_ba = true;
   if (args.intrinsics) {
     const auto& k = *args.intrinsics;

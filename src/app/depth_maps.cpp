@@ -24,7 +24,9 @@ class FolderDepthMaps final : public depth::DepthMapSource {
 }  // namespace
 
 Result<std::unique_ptr<depth::DepthMapSource>> open_depth_maps(const depth::DepthOptions& opts) {
-  if (opts.backend != "external") return std::unique_ptr<depth::DepthMapSource>();
+  if (opts.backend != depth::DepthBackend::kExternal) {
+    return std::unique_ptr<depth::DepthMapSource>();
+  }
   const depth::ExternalDepthOptions& e = opts.external;
   hal::DepthMapFolderOptions fo;
   fo.folder = e.folder;

@@ -20,14 +20,6 @@ namespace {
 
 std::atomic<bool>& g_stop = mer::app::stop_flag();
 
-mer::platform::LogLevel parse_level(const std::string& s) {
-  using mer::platform::LogLevel;
-  if (s == "debug") return LogLevel::kDebug;
-  if (s == "warn") return LogLevel::kWarn;
-  if (s == "error") return LogLevel::kError;
-  return LogLevel::kInfo;
-}
-
 int fail(const mer::Status& s) {
   std::cerr << "mer_slam: error: " << s.message() << "\n";
   return mer::app::exit_code_for(s);
@@ -66,8 +58,7 @@ int main(int argc, char** argv) {
   auto depth_maps = app::open_depth_maps(config.depth);
   if (!depth_maps.is_ok()) return fail(depth_maps.status());
 
-  platform::LogDrain drain(platform::default_log(), stderr,
-                           parse_level(config.telemetry.log_level));
+  platform::LogDrain drain(platform::default_log(), stderr, config.telemetry.log_level);
   const platform::BoardThreads board =
       platform::find_board(config.board.profile).value_or(platform::kBoardGenericX86);
   (void)drain.start(board.log);
@@ -83,7 +74,7 @@ int main(int argc, char** argv) {
       return fail(uri.status());
     }
     auto cam = hal::make_camera(uri.value(), config.camera, !config.pipeline.lockstep,
-                                config.pipeline.mode == "rgbd");
+                                config.pipeline.mode == SensorMode::kRgbd);
     if (!cam.is_ok()) {
       drain.stop();
       return fail(cam.status());

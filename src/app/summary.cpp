@@ -92,7 +92,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   j << "},\n";
   j << "  \"input\": " << json_string(info.input) << ",\n";
   j << "  \"source\": " << json_string(info.source) << ",\n";
-  j << "  \"sensor_mode\": " << json_string(info.sensor_mode) << ",\n";
+  j << "  \"sensor_mode\": " << json_string(std::string(to_string(info.sensor_mode))) << ",\n";
   j << "  \"run_mode\": " << json_string(st.mode) << ",\n";
   const auto& k = info.intrinsics;
   j << "  \"intrinsics\": {\"width\": " << k.width << ", \"height\": " << k.height
@@ -357,7 +357,8 @@ Status write_file_atomic(const std::string& path, const std::string& text) {
 }
 
 void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const RunInfo& info) {
-  os << "mer_slam: " << info.source << " [" << st.mode << ", " << info.sensor_mode << "]\n";
+  os << "mer_slam: " << info.source << " [" << st.mode << ", " << to_string(info.sensor_mode)
+     << "]\n";
   os << "  frames: in " << st.frames_in << ", processed " << st.frames_processed << ", dropped "
      << st.frames_dropped << ", lost " << st.frames_lost << ", keyframes " << st.keyframes << "  ("
      << st.end_reason << ", " << std::fixed << std::setprecision(2) << st.wall_time_s << " s)\n";

@@ -16,6 +16,7 @@
 #include <string>
 
 #include "app/accuracy.h"
+#include "core/sensor_mode.h"
 #include "core/status.h"
 #include "hal/camera.h"
 #include "pipeline/pipeline.h"
@@ -24,10 +25,10 @@ namespace mer::app {
 
 /// Run details that are not pipeline counters.
 struct RunInfo {
-  std::string input;                 ///< --input URI
-  std::string source;                ///< the source's description
-  hal::CameraIntrinsics intrinsics;  ///< calibration in use
-  std::string sensor_mode;           ///< mono | rgbd
+  std::string input;                           ///< --input URI
+  std::string source;                          ///< the source's description
+  hal::CameraIntrinsics intrinsics;            ///< calibration in use
+  SensorMode sensor_mode = SensorMode::kMono;  ///< pipeline.mode
   bool stopped_by_signal = false;
   std::string error;                  ///< non-empty when the run failed
   AccuracyReport accuracy;            ///< ATE against the source's ground truth (when it had one)

@@ -249,10 +249,17 @@ std::string_view to_string(DepthEdgeMode m) {
   return "off";
 }
 
-DepthEdgeMode parse_depth_edges(std::string_view s, bool metric_depth) {
-  if (s == "metric") return DepthEdgeMode::kMetric;
-  if (s == "scaled") return DepthEdgeMode::kScaled;
-  if (s == "auto") return metric_depth ? DepthEdgeMode::kMetric : DepthEdgeMode::kOff;
+DepthEdgeMode resolve_depth_edges(DepthEdgeSetting s, bool metric_depth) {
+  switch (s) {
+    case DepthEdgeSetting::kMetric:
+      return DepthEdgeMode::kMetric;
+    case DepthEdgeSetting::kScaled:
+      return DepthEdgeMode::kScaled;
+    case DepthEdgeSetting::kAuto:
+      return metric_depth ? DepthEdgeMode::kMetric : DepthEdgeMode::kOff;
+    case DepthEdgeSetting::kOff:
+      break;
+  }
   return DepthEdgeMode::kOff;
 }
 
@@ -265,7 +272,7 @@ LocalBundleAdjuster::LocalBundleAdjuster(const LocalBaOptions& opts, map::Map& m
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
       deterministic_(deterministic),
-      depth_mode_(parse_depth_edges(opts.depth_edges, metric_depth)),
+      depth_mode_(resolve_depth_edges(opts.depth_edges, metric_depth)),
       ws_(std::make_unique<Workspace>(opts.huber_sigmas, opts.anchored_sigma_scale)) {
   // The window's poses and points: reserved for the configured window sizes up front.
   const auto window = static_cast<std::size_t>(std::max(0, opts_.window_keyframes));

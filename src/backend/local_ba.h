@@ -59,16 +59,19 @@
 
 namespace mer::backend {
 
-/// How keyframe depth enters the optimization.
-inline constexpr std::array<std::string_view, 4> kDepthEdgeModes{"auto", "off", "metric", "scaled"};
+/// How keyframe depth enters the optimization, as configured (`backend.depth_edges`).
+enum class DepthEdgeSetting : std::uint8_t { kAuto, kOff, kMetric, kScaled };
+/// Names of DepthEdgeSetting in config, by value.
+inline constexpr std::array<std::string_view, 4> kDepthEdgeSettingNames{"auto", "off", "metric",
+                                                                        "scaled"};
 
 /// backend.depth_edges in effect (`auto` resolved by the depth's scale).
 enum class DepthEdgeMode : std::uint8_t { kOff, kMetric, kScaled };
 /// "off", "metric" or "scaled".
 std::string_view to_string(DepthEdgeMode m);
-/// Parses backend.depth_edges (validated against kDepthEdgeModes): `auto` is metric when the
-/// keyframe depth is metric (rgbd mode), off otherwise.
-DepthEdgeMode parse_depth_edges(std::string_view s, bool metric_depth);
+/// The mode backend.depth_edges sets: `auto` is metric when the keyframe depth is metric
+/// (rgbd mode), off otherwise.
+DepthEdgeMode resolve_depth_edges(DepthEdgeSetting s, bool metric_depth);
 
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
@@ -84,8 +87,9 @@ struct LocalBaOptions {
   bool resolve_without_outliers = true;  ///< local runs: solve again with the outliers removed
   int min_inlier_observations = 2;       ///< points with fewer consistent observations are culled
   int full_max_iterations = 100;         ///< iterations of a full-graph optimization (--final-ba)
-  std::string depth_edges = "auto";      ///< 3D-3D edges: auto (metric in rgbd mode, else off),
-                                         ///< off, metric (depth as is), scaled (per-keyframe scale)
+  /// 3D-3D edges: auto (metric in rgbd mode, else off), off, metric (depth as is), scaled
+  /// (per-keyframe scale).
+  DepthEdgeSetting depth_edges = DepthEdgeSetting::kAuto;
   double depth_sigma_rel = 0.01;      ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
   double depth_outlier_chi2 = 3.841;  ///< squared depth error / sigma^2 above this: outlier
 
@@ -132,7 +136,7 @@ struct LocalBaOptions {
     v.field("depth_edges", depth_edges,
             "3D-3D edges from keyframe depth: auto (metric in rgbd mode, off in mono), off, "
             "metric (depth taken as is), scaled (each keyframe's depth scale optimized)",
-            options::OneOf{kDepthEdgeModes});
+            options::Names<DepthEdgeSetting>{kDepthEdgeSettingNames});
     v.field("depth_sigma_rel", depth_sigma_rel,
             "sigma of a 3D-3D edge at depth confidence 1, as a fraction of the depth "
             "(divided by sqrt(confidence))",

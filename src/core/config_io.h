@@ -2,7 +2,8 @@
 /// @file config_io.h
 /// Loading options structs (options.h) from YAML with cv::FileStorage.
 ///
-/// Keys absent from the file keep their defaults. A key the options do not know, a value of
+/// Keys absent from the file keep their defaults. An enum field (options::Names) is read as
+/// one of its names. A key the options do not know, a value of
 /// the wrong type or out of range is an error naming the file, the dotted key, what was
 /// expected and what was found, e.g.
 ///   `configs/slam/x.yaml: key 'tracking.fast_threshold': expected an integer in [1, 255], found
@@ -11,6 +12,7 @@
 #include <set>
 #include <string>
 #include <string_view>
+#include <type_traits>
 
 #include <opencv2/core.hpp>
 #include <opencv2/core/persistence.hpp>
@@ -44,17 +46,27 @@ class YamlReader {
     if (!status_.is_ok()) return;
     if (!has_key(key)) return;  // absent: keep the default
     const cv::FileNode n = node_[std::string(key)];
-    T parsed{};
     std::string found;
-    if (!read_scalar(n, parsed, found)) {
-      fail(key, describe_expected<T>(c), found);
-      return;
+    if constexpr (std::is_enum_v<T>) {
+      static_assert(std::is_same_v<C, Names<T>>, "an enum field needs options::Names<E>");
+      std::string word;
+      if (!read_scalar(n, word, found)) {
+        fail(key, describe_expected<T>(c), found);
+      } else if (!parse_name(word, c.words, value)) {
+        fail(key, describe_expected<T>(c), format_value(word));
+      }
+    } else {
+      T parsed{};
+      if (!read_scalar(n, parsed, found)) {
+        fail(key, describe_expected<T>(c), found);
+        return;
+      }
+      if (!satisfies(parsed, c)) {
+        fail(key, describe_expected<T>(c), format_value(parsed));
+        return;
+      }
+      value = parsed;
     }
-    if (!satisfies(parsed, c)) {
-      fail(key, describe_expected<T>(c), format_value(parsed));
-      return;
-    }
-    value = parsed;
   }
 
   template <typename S>

@@ -14,7 +14,12 @@
 ///   }
 /// };
 /// @endcode
+///
+/// A field may also be an enum, written in YAML as one of its names: the constraint
+/// `Names<E>{kWords}` lists them, `kWords[i]` naming `static_cast<E>(i)`. The word is parsed
+/// once, on loading; the code then compares enumerators.
 
+#include <cstddef>
 #include <cstdint>
 #include <span>
 #include <sstream>
@@ -41,6 +46,38 @@ struct OneOf {
   std::span<const std::string_view> words;  ///< accepted values
 };
 
+/// An enum field written as one of a fixed set of words: `words[i]` is the name of
+/// `static_cast<E>(i)` (the enumerators are 0, 1, ... in the order of the list).
+template <typename E>
+struct Names {
+  static_assert(std::is_enum_v<E>, "options::Names is the constraint of an enum field");
+  std::span<const std::string_view> words;  ///< name of each enumerator, by value
+};
+
+/// Name of enumerator `value` in `words` (empty when the value has none).
+template <typename E>
+std::string_view name_of(E value, std::span<const std::string_view> words) {
+  using U = std::underlying_type_t<E>;
+  const auto i = static_cast<U>(value);
+  if constexpr (std::is_signed_v<U>) {
+    if (i < 0) return {};
+  }
+  if (static_cast<std::size_t>(i) >= words.size()) return {};
+  return words[static_cast<std::size_t>(i)];
+}
+
+/// Sets `out` to the enumerator named `word` in `words`; false (out unchanged) when none is.
+template <typename E>
+bool parse_name(std::string_view word, std::span<const std::string_view> words, E& out) {
+  for (std::size_t i = 0; i < words.size(); ++i) {
+    if (words[i] == word) {
+      out = static_cast<E>(i);
+      return true;
+    }
+  }
+  return false;
+}
+
 /// Human description of what a field accepts, for error messages and printing.
 template <typename T, typename C>
 std::string describe_expected(const C& c) {
@@ -56,7 +93,7 @@ std::string describe_expected(const C& c) {
   }
   if constexpr (std::is_same_v<C, Range<T>>) {
     os << " in [" << c.lo << ", " << c.hi << "]";
-  } else if constexpr (std::is_same_v<C, OneOf>) {
+  } else if constexpr (std::is_same_v<C, OneOf> || std::is_same_v<C, Names<T>>) {
     os << ", one of {";
     for (std::size_t i = 0; i < c.words.size(); ++i) os << (i ? ", " : "") << c.words[i];
     os << "}";
@@ -74,6 +111,8 @@ bool satisfies(const T& value, const C& c) {
       if (w == value) return true;
     }
     return false;
+  } else if constexpr (std::is_same_v<C, Names<T>>) {
+    return !name_of(value, c.words).empty();
   } else {
     (void)value;
     (void)c;
@@ -95,10 +134,32 @@ std::string format_value(const T& value) {
     // Keep a decimal point so the value reads back as a real, not an int.
     const std::string s = os.str();
     if (s.find_first_of(".eEn") == std::string::npos) os << ".0";
+  } else if constexpr (std::is_enum_v<T>) {
+    os << static_cast<long long>(value);  // without its names: the number
   } else {
     os << value;
   }
   return os.str();
+}
+
+/// Formats a field's value given its constraint: an enum by its name, in double quotes.
+template <typename T, typename C>
+std::string format_value(const T& value, const C& c) {
+  if constexpr (std::is_same_v<C, Names<T>>) {
+    const std::string_view name = name_of(value, c.words);
+    if (!name.empty()) return format_value(std::string(name));
+  }
+  (void)c;
+  return format_value(value);
+}
+
+/// Sets enum field `out` from `word`, a value given outside YAML (a command-line flag); an
+/// unknown word is an error naming `key` and the accepted words, as the YAML loader's is.
+template <typename E>
+Status set_by_name(std::string_view key, std::string_view word, const Names<E>& c, E& out) {
+  if (parse_name(word, c.words, out)) return Status::ok();
+  return invalid_argument("key '" + std::string(key) + "': expected " + describe_expected<E>(c) +
+                          ", found " + format_value(std::string(word)));
 }
 
 /// Visitor that checks every field against its constraint; the first failure wins.
@@ -111,7 +172,7 @@ class Validator {
   void field(std::string_view key, T& value, std::string_view /*doc*/, const C& c = {}) {
     if (!status_.is_ok() || satisfies(value, c)) return;
     status_ = invalid_argument("key '" + prefix_ + std::string(key) + "': expected " +
-                               describe_expected<T>(c) + ", found " + format_value(value));
+                               describe_expected<T>(c) + ", found " + format_value(value, c));
   }
 
   template <typename S>
@@ -140,7 +201,7 @@ class Printer {
     pad();
     os_ << "# " << doc << " [" << describe_expected<T>(c) << "]\n";
     pad();
-    os_ << key << ": " << format_value(value) << "\n";
+    os_ << key << ": " << format_value(value, c) << "\n";
   }
 
   template <typename S>

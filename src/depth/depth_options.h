@@ -3,6 +3,7 @@
 /// Options of keyframe creation and depth inference (config section `depth`).
 
 #include <array>
+#include <cstdint>
 #include <string>
 #include <string_view>
 
@@ -11,18 +12,37 @@
 
 namespace mer::depth {
 
-/// Backends selectable in config.
-inline constexpr std::array<std::string_view, 5> kDepthBackends{"auto", "triangulation", "rgbd",
-                                                                "plane_sweep", "external"};
+/// Depth inference backend (`depth.backend`).
+enum class DepthBackend : std::uint8_t {
+  kAuto,           ///< rgbd in rgbd mode, else triangulation
+  kTriangulation,  ///< epipolar matching and triangulation against neighbour keyframes
+  kRgbd,           ///< the sensor's depth image
+  kPlaneSweep,     ///< dense plane-sweep stereo against recent frames
+  kExternal,       ///< depth maps from files (depth.external)
+};
+/// Names of DepthBackend in config, by value.
+inline constexpr std::array<std::string_view, 5> kDepthBackendNames{"auto", "triangulation", "rgbd",
+                                                                    "plane_sweep", "external"};
 
 /// File formats of the `external` backend's depth maps.
 inline constexpr std::array<std::string_view, 3> kExternalDepthFormats{"auto", "png16", "float32"};
 /// How the `external` backend's file names give a timestamp.
 inline constexpr std::array<std::string_view, 3> kExternalDepthTimeUnits{"auto", "s", "ns"};
-/// Units of the `external` backend's depth.
-inline constexpr std::array<std::string_view, 2> kExternalDepthScales{"unknown", "metric"};
-/// Values of depth.fuse_merge_duplicates.
-inline constexpr std::array<std::string_view, 3> kMergeModes{"auto", "on", "off"};
+/// Units of the `external` backend's depth (`depth.external.scale`).
+enum class ExternalDepthScale : std::uint8_t {
+  kUnknown,  ///< up to an unknown scale, aligned to the map
+  kMetric,   ///< metres
+};
+/// Names of ExternalDepthScale in config, by value.
+inline constexpr std::array<std::string_view, 2> kExternalDepthScaleNames{"unknown", "metric"};
+/// Whether duplicate points are merged (`depth.fuse_merge_duplicates`).
+enum class MergeMode : std::uint8_t {
+  kAuto,  ///< in rgbd mode only
+  kOn,    ///< always
+  kOff,   ///< never
+};
+/// Names of MergeMode in config, by value.
+inline constexpr std::array<std::string_view, 3> kMergeModeNames{"auto", "on", "off"};
 
 /// Options of the `triangulation` backend.
 struct TriangulationOptions {
@@ -86,11 +106,12 @@ struct ExternalDepthOptions {
   std::string time_unit = "auto";  ///< file-name timestamps: auto, s, ns
   double depth_scale = 5000.0;     ///< png16: stored units per depth unit (TUM: 5000 per m)
   double max_time_diff_s = 0.02;   ///< largest keyframe-to-map time difference, s
-  std::string scale = "unknown";   ///< unknown (up to scale, aligned to the map) or metric
-  double confidence = 1.0;         ///< confidence given to every sampled depth
-  double min_depth = 0.0;          ///< closer readings are ignored (maps' unit)
-  double max_depth = 1.0e6;        ///< farther readings are ignored (maps' unit)
-  double max_depth_step = 0.03;    ///< relative step across 2x2 pixels: a depth edge (refused)
+  /// unknown (up to scale, aligned to the map) or metric
+  ExternalDepthScale scale = ExternalDepthScale::kUnknown;
+  double confidence = 1.0;       ///< confidence given to every sampled depth
+  double min_depth = 0.0;        ///< closer readings are ignored (maps' unit)
+  double max_depth = 1.0e6;      ///< farther readings are ignored (maps' unit)
+  double max_depth_step = 0.03;  ///< relative step across 2x2 pixels: a depth edge (refused)
 
   template <class V>
   void visit(V& v) {
@@ -116,7 +137,7 @@ struct ExternalDepthOptions {
     v.field("scale", scale,
             "unknown: depth up to an unknown scale (a monocular network), aligned to the map "
             "with the keyframe's 3D-2D matches; metric: metres (used as is in rgbd mode)",
-            options::OneOf{kExternalDepthScales});
+            options::Names<ExternalDepthScale>{kExternalDepthScaleNames});
     v.field("confidence", confidence,
             "confidence of every depth read from a map (depth.min_confidence gates new points)",
             options::Range<double>{0.0, 1.0});
@@ -133,7 +154,8 @@ struct ExternalDepthOptions {
 
 /// Keyframe creation and depth inference.
 struct DepthOptions {
-  std::string backend = "auto";    ///< auto: rgbd in rgbd mode, else triangulation
+  /// auto: rgbd in rgbd mode, else triangulation
+  DepthBackend backend = DepthBackend::kAuto;
   int neighbours = 5;              ///< keyframes depth inference looks at
   double min_confidence = 0.2;     ///< depth below this confidence makes no map-point
   int min_scale_samples = 20;      ///< 3D-2D matches needed to align a non-map-scale depth
@@ -143,7 +165,7 @@ struct DepthOptions {
   double fuse_min_view_cos = 0.5;  ///< cosine of the largest angle to a point's mean view ray
   /// A projected point matching a keypoint that tracks another point merges the two: auto
   /// (rgbd mode only), on, off.
-  std::string fuse_merge_duplicates = "auto";
+  MergeMode fuse_merge_duplicates = MergeMode::kAuto;
   /// Align each point's keypoint in a new keyframe to the point's anchor patch (its
   /// appearance in the first keyframe that observed it, warped by the views' geometry).
   bool align_keypoints = true;
@@ -161,7 +183,7 @@ struct DepthOptions {
     v.field("backend", backend,
             "depth inference: auto (rgbd in rgbd mode, else triangulation), triangulation, "
             "rgbd, plane_sweep, external (depth maps from files, depth.external)",
-            options::OneOf{kDepthBackends});
+            options::Names<DepthBackend>{kDepthBackendNames});
     v.field("neighbours", neighbours, "neighbouring keyframes depth inference uses",
             options::Range<int>{1, 16});
     v.field("min_confidence", min_confidence,
@@ -191,7 +213,7 @@ struct DepthOptions {
             "stays, if its position reprojects onto every observation of the other), tying the "
             "old and new points of a revisited place together: auto (on in rgbd mode, off "
             "in mono, where the map's scale drifts between them), on, off",
-            options::OneOf{kMergeModes});
+            options::Names<MergeMode>{kMergeModeNames});
     v.field("align_keypoints", align_keypoints,
             "move the keypoint of each map point seen by a new keyframe to where the point's "
             "anchor patch (its appearance in the first keyframe that observed it, warped by the "

@@ -26,7 +26,7 @@ ExternalDepth::ExternalDepth(const ExternalDepthOptions& opts, DepthMapSource& s
       max_dt_ns_(static_cast<std::int64_t>(std::llround(opts.max_time_diff_s * kNsPerS))) {}
 
 DepthScale ExternalDepth::scale() const {
-  return opts_.scale == "metric" ? DepthScale::kMetric : DepthScale::kUnknown;
+  return opts_.scale == ExternalDepthScale::kMetric ? DepthScale::kMetric : DepthScale::kUnknown;
 }
 
 std::optional<std::size_t> ExternalDepth::nearest(std::int64_t t_ns) const {

@@ -31,35 +31,37 @@ constexpr float kAlignTolerancePx = 0.01F;  // converged: last update shorter (l
 
 }  // namespace
 
-KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
+KeyframeBuilder::KeyframeBuilder(const DepthOptions& opts, SensorMode mode, map::Map& map,
                                  std::vector<float> level_sigma2, double metric_depth_sigma_rel,
                                  DepthMapSource* depth_maps)
     : opts_(opts),
-      mode_(std::move(mode)),
-      rgbd_(mode_ == "rgbd"),
-      merge_duplicates_(opts.fuse_merge_duplicates == "on" ||
-                        (opts.fuse_merge_duplicates == "auto" && rgbd_)),
+      rgbd_(mode == SensorMode::kRgbd),
+      merge_duplicates_(opts.fuse_merge_duplicates == MergeMode::kOn ||
+                        (opts.fuse_merge_duplicates == MergeMode::kAuto && rgbd_)),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
       metric_depth_sigma_rel_(metric_depth_sigma_rel),
       depth_maps_(depth_maps) {}
 
 Status KeyframeBuilder::init() {
-  std::string backend = opts_.backend;
-  if (backend == "auto") backend = rgbd_ ? "rgbd" : "triangulation";
-  if (backend == "rgbd") {
+  DepthBackend backend = opts_.backend;
+  if (backend == DepthBackend::kAuto) {
+    backend = rgbd_ ? DepthBackend::kRgbd : DepthBackend::kTriangulation;
+  }
+  backend_kind_ = backend;
+  if (backend == DepthBackend::kRgbd) {
     if (!rgbd_) {
       return invalid_argument("key 'depth.backend': 'rgbd' needs pipeline.mode rgbd");
     }
     backend_ = std::make_unique<RgbdDepth>(opts_.rgbd);
     fit_depth_ = metric_depth_sigma_rel_ > 0.0;
-  } else if (backend == "plane_sweep") {
+  } else if (backend == DepthBackend::kPlaneSweep) {
     auto ps = std::make_unique<PlaneSweepDepth>(opts_.plane_sweep);
     if (Status s = ps->stereo().status(); !s.is_ok()) {
       return invalid_argument("section 'depth.plane_sweep.stereo': " + s.message());
     }
     backend_ = std::move(ps);
-  } else if (backend == "external") {
+  } else if (backend == DepthBackend::kExternal) {
     if (depth_maps_ == nullptr) {
       return invalid_argument(
           "key 'depth.backend': 'external' needs depth maps (key 'depth.external.folder')");

@@ -20,6 +20,7 @@
 #include <Eigen/Geometry>
 #include <opencv2/core/mat.hpp>
 
+#include "core/sensor_mode.h"
 #include "core/status.h"
 #include "depth/depth_inference.h"
 #include "depth/depth_map_source.h"
@@ -78,13 +79,13 @@ struct KeyframeBuildTotals {
 /// Keyframe creation + depth inference.
 class KeyframeBuilder {
  public:
-  /// `mode` is "mono" or "rgbd"; `level_sigma2` the keypoint variance per pyramid level.
+  /// `level_sigma2` is the keypoint variance per pyramid level.
   /// `metric_depth_sigma_rel` > 0: with metric (sensor) depth, structure refinement also fits
   /// each observing keyframe's depth, with this sigma as a fraction of the depth at
   /// confidence 1 (the back end's 3D-3D edge sigma, so both weigh depth alike).
   /// `depth_maps`: the maps of the `external` backend (must outlive the builder; may be null
   /// for the other backends).
-  KeyframeBuilder(const DepthOptions& opts, std::string mode, map::Map& map,
+  KeyframeBuilder(const DepthOptions& opts, SensorMode mode, map::Map& map,
                   std::vector<float> level_sigma2, double metric_depth_sigma_rel = 0.0,
                   DepthMapSource* depth_maps = nullptr);
 
@@ -99,6 +100,8 @@ class KeyframeBuilder {
 
   const KeyframeBuildTotals& totals() const { return totals_; }
   std::string_view backend_name() const { return backend_ ? backend_->name() : "none"; }
+  /// The backend in use (`auto` resolved by the mode); kAuto before init().
+  DepthBackend backend() const { return backend_kind_; }
   /// Keyframe depth is metric sensor depth in a metric (RGB-D) map: the back end may use it
   /// as is (3D-3D edges without a per-keyframe scale).
   bool metric_map_depth() const {
@@ -157,9 +160,9 @@ class KeyframeBuilder {
   };
 
   DepthOptions opts_;
-  std::string mode_;
-  bool rgbd_;              ///< mode_ is rgbd (parsed once)
-  bool merge_duplicates_;  ///< fuse_merge_duplicates resolved for the mode (parsed once)
+  bool rgbd_;              ///< sensor mode is rgbd
+  bool merge_duplicates_;  ///< fuse_merge_duplicates resolved for the mode
+  DepthBackend backend_kind_ = DepthBackend::kAuto;  ///< backend in use (set by init())
   map::Map& map_;
   std::vector<float> level_sigma2_;
   double metric_depth_sigma_rel_;

@@ -619,7 +619,7 @@ Status PlaneSweepStereo::compute(const PlaneSweepInput& in) {
 
   resample(*in.gray, ref_.data());
   pad_reference();
-  const bool zncc = opts_.cost == "zncc";
+  const bool zncc = opts_.cost == PlaneSweepCost::kZncc;
   if (zncc) prepare_reference_stats();
 
   Eigen::Matrix3d K = Eigen::Matrix3d::Identity();
@@ -686,9 +686,9 @@ Status PlaneSweepStereo::compute(const PlaneSweepInput& in) {
   }
 
   const std::int16_t* final_costs = cost_.data();
-  if (opts_.aggregation != "none") {
+  if (opts_.aggregation != PlaneSweepAggregation::kNone) {
     std::fill(agg_.begin(), agg_.end(), std::int16_t{0});
-    const bool diagonals = opts_.aggregation == "sgm8";
+    const bool diagonals = opts_.aggregation == PlaneSweepAggregation::kSgm8;
     aggregate_sgm(false, diagonals);
     aggregate_sgm(true, diagonals);
     final_costs = agg_.data();

@@ -54,29 +54,43 @@
 
 namespace mer::depth {
 
-/// Photometric costs selectable in config.
-inline constexpr std::array<std::string_view, 2> kPlaneSweepCosts{"zncc", "census"};
-/// Cost aggregations selectable in config.
-inline constexpr std::array<std::string_view, 3> kPlaneSweepAggregations{"none", "sgm4", "sgm8"};
+/// Photometric cost of the sweep (`depth.plane_sweep.cost`).
+enum class PlaneSweepCost : std::uint8_t {
+  kZncc,    ///< zero-mean normalized cross-correlation
+  kCensus,  ///< ternary census transform
+};
+/// Names of PlaneSweepCost in config, by value.
+inline constexpr std::array<std::string_view, 2> kPlaneSweepCostNames{"zncc", "census"};
+/// Cost aggregation of the sweep (`depth.plane_sweep.aggregation`).
+enum class PlaneSweepAggregation : std::uint8_t {
+  kNone,  ///< per-pixel costs as they are
+  kSgm4,  ///< semi-global, 4 paths
+  kSgm8,  ///< semi-global, 8 paths (diagonals too)
+};
+/// Names of PlaneSweepAggregation in config, by value.
+inline constexpr std::array<std::string_view, 3> kPlaneSweepAggregationNames{"none", "sgm4",
+                                                                             "sgm8"};
 
 /// Options of the plane-sweep stereo (config section `depth.plane_sweep`).
 struct PlaneSweepOptions {
-  int width = 320;                    ///< working width, px (inputs are resampled to it)
-  int height = 240;                   ///< working height, px
-  int num_planes = 24;                ///< inverse-depth hypotheses (sub-plane refined)
-  int max_sources = 8;                ///< source views compute() accepts (buffers per view)
-  int patch_radius = 2;               ///< cost window is (2r+1)^2 pixels
-  std::string cost = "zncc";          ///< photometric cost: zncc or census
-  double zncc_variance_floor = 4.0;   ///< grey levels^2 added to both window variances
-  double census_epsilon = 8.0;        ///< census: neighbours this close to the centre are "equal"
-  int best_k = 3;                     ///< average of the best K of N source costs
-  std::string aggregation = "sgm8";   ///< none, sgm4 or sgm8 (semi-global, 4 or 8 paths)
-  double sgm_p1 = 0.03;               ///< SGM penalty of a one-plane step, [0, 1] cost units
-  double sgm_p2 = 0.3;                ///< SGM penalty of a larger jump, [0, 1] cost units
-  bool subsample = true;              ///< sub-plane refinement (equiangular fit)
-  double uniqueness_full = 0.25;      ///< 1 - best/second giving full uniqueness confidence
-  double uniqueness_radius_px = 1.0;  ///< the second best is at least this far, px
-  int consistent_views = 2;           ///< agreeing sources giving full consistency confidence
+  int width = 320;       ///< working width, px (inputs are resampled to it)
+  int height = 240;      ///< working height, px
+  int num_planes = 24;   ///< inverse-depth hypotheses (sub-plane refined)
+  int max_sources = 8;   ///< source views compute() accepts (buffers per view)
+  int patch_radius = 2;  ///< cost window is (2r+1)^2 pixels
+  /// photometric cost: zncc or census
+  PlaneSweepCost cost = PlaneSweepCost::kZncc;
+  double zncc_variance_floor = 4.0;  ///< grey levels^2 added to both window variances
+  double census_epsilon = 8.0;       ///< census: neighbours this close to the centre are "equal"
+  int best_k = 3;                    ///< average of the best K of N source costs
+  /// none, sgm4 or sgm8 (semi-global, 4 or 8 paths)
+  PlaneSweepAggregation aggregation = PlaneSweepAggregation::kSgm8;
+  double sgm_p1 = 0.03;                   ///< SGM penalty of a one-plane step, [0, 1] cost units
+  double sgm_p2 = 0.3;                    ///< SGM penalty of a larger jump, [0, 1] cost units
+  bool subsample = true;                  ///< sub-plane refinement (equiangular fit)
+  double uniqueness_full = 0.25;          ///< 1 - best/second giving full uniqueness confidence
+  double uniqueness_radius_px = 1.0;      ///< the second best is at least this far, px
+  int consistent_views = 2;               ///< agreeing sources giving full consistency confidence
   double consistency_tolerance_px = 1.0;  ///< a source agrees within this distance, px
   double min_confidence = 0.5;            ///< depth() is 0 below this confidence
 
@@ -91,7 +105,8 @@ struct PlaneSweepOptions {
             options::Range<int>{1, 32});
     v.field("patch_radius", patch_radius, "cost window half-size: (2r+1)^2 pixels",
             options::Range<int>{1, 3});
-    v.field("cost", cost, "photometric cost: zncc or census", options::OneOf{kPlaneSweepCosts});
+    v.field("cost", cost, "photometric cost: zncc or census",
+            options::Names<PlaneSweepCost>{kPlaneSweepCostNames});
     v.field("zncc_variance_floor", zncc_variance_floor,
             "grey levels^2 added to both window variances (flat windows score zncc ~ 0)",
             options::Range<double>{0.0, 10000.0});
@@ -102,7 +117,7 @@ struct PlaneSweepOptions {
     v.field("best_k", best_k, "cost of a plane: average of the best K source costs",
             options::Range<int>{1, 32});
     v.field("aggregation", aggregation, "cost aggregation: none, sgm4 or sgm8 (semi-global)",
-            options::OneOf{kPlaneSweepAggregations});
+            options::Names<PlaneSweepAggregation>{kPlaneSweepAggregationNames});
     v.field("sgm_p1", sgm_p1, "SGM penalty of a one-plane step, in cost units [0, 1]",
             options::Range<double>{0.0, 1.0});
     v.field("sgm_p2", sgm_p2, "SGM penalty of a jump of more than one plane, cost units",

@@ -51,7 +51,7 @@ Result<std::unique_ptr<Extractor>> make_extractor(const ExtractorOptions& opts, 
                                                   int height) {
   if (Status s = validate_extractor_options(opts, width, height); !s.is_ok()) return s;
   std::unique_ptr<Extractor> e;
-  if (opts.backend == "orb") {
+  if (opts.backend == ExtractorBackend::kOrb) {
     e = std::make_unique<OrbExtractor>(opts, width, height);
   } else {
     e = std::make_unique<OpenCvOrbExtractor>(opts, width, height);

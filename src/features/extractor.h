@@ -12,6 +12,7 @@
 /// An extractor instance is not thread-safe: use one per thread.
 
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
@@ -25,29 +26,35 @@
 
 namespace mer::features {
 
-/// Names accepted by ExtractorOptions::backend.
-inline constexpr std::array<std::string_view, 2> kExtractorBackends = {"orb", "opencv_orb"};
+/// Feature extractor implementation (ExtractorOptions::backend).
+enum class ExtractorBackend : std::uint8_t {
+  kOrb,        ///< allocation-free ORB of this project
+  kOpenCvOrb,  ///< cv::ORB (allocates; for comparison)
+};
+/// Names of ExtractorBackend in config, by value.
+inline constexpr std::array<std::string_view, 2> kExtractorBackendNames = {"orb", "opencv_orb"};
 
 /// Options of the feature extractor (config section `tracking.extractor`).
 struct ExtractorOptions {
-  std::string backend = "orb";  ///< "orb": allocation-free ORB of this project; "opencv_orb":
-                                ///< cv::ORB (allocates; for comparison)
-  int num_features = 1000;      ///< features per frame, over all levels
-  double scale_factor = 1.2;    ///< pyramid scale between levels
-  int num_levels = 8;           ///< pyramid levels
-  int fast_threshold = 20;      ///< FAST threshold
-  int min_fast_threshold = 7;   ///< retry threshold in cells where nothing is found
-  int grid_cols = 8;            ///< bucketing grid columns at level 0 (scaled per level)
-  int grid_rows = 6;            ///< bucketing grid rows at level 0 (scaled per level)
-  int edge_threshold = 19;      ///< border without features, px (must fit the 31x31 patch)
-  bool subpixel = false;        ///< orb: sub-pixel keypoints from the FAST scores around them
+  /// "orb": allocation-free ORB of this project; "opencv_orb": cv::ORB (allocates; for
+  /// comparison)
+  ExtractorBackend backend = ExtractorBackend::kOrb;
+  int num_features = 1000;     ///< features per frame, over all levels
+  double scale_factor = 1.2;   ///< pyramid scale between levels
+  int num_levels = 8;          ///< pyramid levels
+  int fast_threshold = 20;     ///< FAST threshold
+  int min_fast_threshold = 7;  ///< retry threshold in cells where nothing is found
+  int grid_cols = 8;           ///< bucketing grid columns at level 0 (scaled per level)
+  int grid_rows = 6;           ///< bucketing grid rows at level 0 (scaled per level)
+  int edge_threshold = 19;     ///< border without features, px (must fit the 31x31 patch)
+  bool subpixel = false;       ///< orb: sub-pixel keypoints from the FAST scores around them
 
   template <class V>
   void visit(V& v) {
     v.field("backend", backend,
             "feature backend: orb (this project's, allocation-free) or opencv_orb (cv::ORB, "
             "allocates per frame; for comparison)",
-            options::OneOf{kExtractorBackends});
+            options::Names<ExtractorBackend>{kExtractorBackendNames});
     v.field("num_features", num_features, "features per frame, over all pyramid levels",
             options::Range<int>{1, 100000});
     v.field("scale_factor", scale_factor, "image pyramid scale between consecutive levels",

@@ -26,6 +26,7 @@
 #include <Eigen/Core>
 
 #include "core/options.h"
+#include "core/sensor_mode.h"
 
 namespace mer::frontend {
 
@@ -44,11 +45,11 @@ struct KeyframePolicyOptions {
   double min_baseline_ratio = 0.03;  ///< below this baseline / median depth only the count fires
   double rgbd_max_spacing_s = 0.8;   ///< RGB-D: max_spacing_s (sensor depth: keyframes are cheap)
 
-  /// The options in effect for a sensor mode ("mono" or "rgbd"): RGB-D takes
-  /// rgbd_max_spacing_s and no parallax gate (its depth does not come from the poses).
-  KeyframePolicyOptions for_mode(std::string_view mode) const {
+  /// The options in effect for a sensor mode: RGB-D takes rgbd_max_spacing_s and no
+  /// parallax gate (its depth does not come from the poses).
+  KeyframePolicyOptions for_mode(SensorMode mode) const {
     KeyframePolicyOptions o = *this;
-    if (mode == "rgbd") {
+    if (mode == SensorMode::kRgbd) {
       o.max_spacing_s = rgbd_max_spacing_s;
       o.min_baseline_ratio = 0.0;
     }

@@ -60,15 +60,14 @@ float sample_depth(const cv::Mat& depth, float x, float y, double max_step) {
 }  // namespace
 
 Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pinhole& K, int width,
-                 int height, std::string mode, bool focal_auto)
+                 int height, SensorMode mode, bool focal_auto)
     : opts_(opts),
       map_(map),
       K_(K),
       width_(width),
       height_(height),
-      mode_(std::move(mode)),
-      rgbd_(mode_ == "rgbd"),
-      policy_(opts.keyframe.for_mode(mode_), width, height) {
+      rgbd_(mode == SensorMode::kRgbd),
+      policy_(opts.keyframe.for_mode(mode), width, height) {
   spatial_max_age_ns_ = static_cast<std::int64_t>(opts.spatial_max_age_s * 1e9);
   focal_.estimated = focal_auto;
   focal_.initial = K.fx;

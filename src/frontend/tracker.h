@@ -36,6 +36,7 @@
 #include <string>
 #include <vector>
 
+#include "core/sensor_mode.h"
 #include "features/extractor.h"
 #include "frontend/keyframe_policy.h"
 #include "frontend/tracking_options.h"
@@ -121,9 +122,9 @@ struct TrackerCounters {
 /// The tracking stage.
 class Tracker {
  public:
-  /// `mode` "mono" or "rgbd"; `focal_auto` estimates the focal length from `K.fx` as a guess.
+  /// `focal_auto` estimates the focal length from `K.fx` as a guess.
   Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pinhole& K, int width,
-          int height, std::string mode, bool focal_auto);
+          int height, SensorMode mode, bool focal_auto);
   ~Tracker();
 
   /// Builds the extractor and buffers; error on bad options.
@@ -231,8 +232,7 @@ class Tracker {
   geometry::Pinhole K_;
   int width_;
   int height_;
-  std::string mode_;
-  bool rgbd_;  // mode_ is rgbd (parsed once, not per frame)
+  bool rgbd_;  // sensor mode is rgbd
   FocalReport focal_;
   TrackerCounters counters_;
   std::unique_ptr<features::Extractor> extractor_;

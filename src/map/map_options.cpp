@@ -8,13 +8,16 @@
 namespace mer::map {
 namespace {
 
-/// Visitor that moves every ranged field into its range (NaN becomes the lower bound).
+/// Visitor that moves every ranged field into its range (NaN becomes the lower bound) and an
+/// enum field without a name to the first one.
 struct Clamper {
   template <typename T, typename C = options::Any>
   void field(std::string_view /*key*/, T& value, std::string_view /*doc*/, const C& c = {}) {
     if constexpr (std::is_same_v<C, options::Range<T>>) {
       if (!(value >= c.lo)) value = c.lo;
       if (value > c.hi) value = c.hi;
+    } else if constexpr (std::is_same_v<C, options::Names<T>>) {
+      if (!options::satisfies(value, c)) value = static_cast<T>(0);
     }
   }
 };

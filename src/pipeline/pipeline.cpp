@@ -109,7 +109,7 @@ Status Pipeline::init(const std::string& output_dir) {
   if (K.width <= 0 || K.height <= 0) {
     return runtime_error("pipeline: camera '" + camera_.describe() + "' is not open");
   }
-  if (config_.pipeline.mode == "rgbd" && !camera_.capabilities().has_depth) {
+  if (config_.pipeline.mode == SensorMode::kRgbd && !camera_.capabilities().has_depth) {
     return input_error("--mode rgbd: input '" + camera_.describe() + "' provides no depth");
   }
   if (camera_.pool().capacity() < kCaptureRingSize + 2) {
@@ -128,13 +128,16 @@ Status Pipeline::init(const std::string& output_dir) {
   map_ = std::make_unique<map::Map>(config_.map);
   const hal::CameraIntrinsics& Kc = config_.intrinsics.fx > 0.0 ? config_.intrinsics : K;
   const geometry::Pinhole pinhole{Kc.fx, Kc.fy, Kc.cx, Kc.cy};
-  tracker_ =
-      std::make_unique<frontend::Tracker>(config_.tracking, *map_, pinhole, K.width, K.height,
-                                          config_.pipeline.mode, config_.pipeline.focal == "auto");
+  tracker_ = std::make_unique<frontend::Tracker>(config_.tracking, *map_, pinhole, K.width,
+                                                 K.height, config_.pipeline.mode,
+                                                 config_.pipeline.focal == FocalMode::kAuto);
   if (Status t = tracker_->init(); !t.is_ok()) return t;
   builder_ = std::make_unique<depth::KeyframeBuilder>(
       config_.depth, config_.pipeline.mode, *map_, tracker_->level_sigma2(),
-      config_.backend.depth_edges == "off" ? 0.0 : config_.backend.depth_sigma_rel, depth_maps_);
+      config_.backend.depth_edges == backend::DepthEdgeSetting::kOff
+          ? 0.0
+          : config_.backend.depth_sigma_rel,
+      depth_maps_);
   if (Status d = builder_->init(); !d.is_ok()) return d;
   ba_ = std::make_unique<backend::LocalBundleAdjuster>(
       config_.backend, *map_, tracker_->level_sigma2(), config_.pipeline.lockstep,
@@ -167,7 +170,7 @@ Status Pipeline::init(const std::string& output_dir) {
   stats_.relocalization.events.reserve(kMaxRelocalizationEvents);
   segment_stats_.assign(static_cast<std::size_t>(config_.tracking.max_segments), SegmentStats{});
   jobs_.resize(kKeyframeJobs);
-  const bool dense = builder_->backend_name() == "plane_sweep";
+  const bool dense = builder_->backend() == depth::DepthBackend::kPlaneSweep;
   const int recent = dense ? config_.depth.plane_sweep.sources : 0;
   if (dense) tracker_->keep_recent_frames(recent + 1, config_.depth.plane_sweep.source_spacing_s);
   for (auto& j : jobs_) {

@@ -3,32 +3,41 @@
 /// Options of the pipeline, the board (threads, budgets), telemetry and outputs.
 
 #include <array>
+#include <cstdint>
 #include <string>
 #include <string_view>
 
 #include "core/options.h"
+#include "core/sensor_mode.h"
+#include "platform/log_ring.h"
 
 namespace mer::pipeline {
 
-inline constexpr std::array<std::string_view, 2> kModes{"mono", "rgbd"};
-inline constexpr std::array<std::string_view, 2> kFocalModes{"fixed", "auto"};
+/// Focal length of the run (`pipeline.focal`).
+enum class FocalMode : std::uint8_t {
+  kFixed,  ///< the calibration's
+  kAuto,   ///< estimated while tracking, the calibration's as a guess
+};
+/// Names of FocalMode in config, by value.
+inline constexpr std::array<std::string_view, 2> kFocalModeNames{"fixed", "auto"};
 inline constexpr std::array<std::string_view, 3> kBoardProfiles{"generic_x86", "rpi4",
                                                                 "jetson_orin"};
-inline constexpr std::array<std::string_view, 4> kLogLevels{"debug", "info", "warn", "error"};
+/// Names of platform::LogLevel in config, by value.
+inline constexpr std::array<std::string_view, 4> kLogLevelNames{"debug", "info", "warn", "error"};
 
 /// How the pipeline runs (config section `pipeline`).
 struct PipelineOptions {
-  std::string mode = "mono";      ///< mono | rgbd (rgbd needs a source with depth)
-  bool lockstep = false;          ///< run stages sequentially and deterministically
-  int max_frames = 0;             ///< stop after this many frames from the source (0: all)
-  int acquire_timeout_ms = 1000;  ///< wait for a frame this long before retrying
-  int source_timeout_ms = 10000;  ///< no frame for this long ends the run (source_error)
-  std::string focal = "fixed";    ///< fixed: use calibration; auto: estimate the focal length
-  bool final_ba = false;          ///< after the stream: full-graph BA (offline, unbounded)
+  SensorMode mode = SensorMode::kMono;  ///< mono | rgbd (rgbd needs a source with depth)
+  bool lockstep = false;                ///< run stages sequentially and deterministically
+  int max_frames = 0;                   ///< stop after this many frames from the source (0: all)
+  int acquire_timeout_ms = 1000;        ///< wait for a frame this long before retrying
+  int source_timeout_ms = 10000;        ///< no frame for this long ends the run (source_error)
+  FocalMode focal = FocalMode::kFixed;  ///< fixed: use calibration; auto: estimate the focal length
+  bool final_ba = false;                ///< after the stream: full-graph BA (offline, unbounded)
 
   template <class V>
   void visit(V& v) {
-    v.field("mode", mode, "sensor mode", options::OneOf{kModes});
+    v.field("mode", mode, "sensor mode", options::Names<SensorMode>{kSensorModeNames});
     v.field("lockstep", lockstep,
             "sequential deterministic replay (no drops, as fast as possible)");
     v.field("max_frames", max_frames, "stop after N source frames (0: whole input)",
@@ -39,7 +48,7 @@ struct PipelineOptions {
             "no frame for this long ends the run as a source error (covers device recovery), ms",
             options::Range<int>{1, 3600000});
     v.field("focal", focal, "focal length: fixed (calibrated) or auto (estimated)",
-            options::OneOf{kFocalModes});
+            options::Names<FocalMode>{kFocalModeNames});
     v.field("final_ba", final_ba,
             "after the stream ends, optimize the whole graph (all keyframes and points); "
             "keyframes_final.txt and trajectory_final.txt then carry its result");
@@ -109,9 +118,9 @@ struct BoardOptions {
 
 /// Latency and allocation accounting (config section `telemetry`).
 struct TelemetryOptions {
-  int warmup_frames = 10;          ///< frames excluded from steady-state allocation counts
-  int trace_capacity = 4096;       ///< latency samples kept per stage in the trace ring
-  std::string log_level = "info";  ///< least severe log level printed
+  int warmup_frames = 10;     ///< frames excluded from steady-state allocation counts
+  int trace_capacity = 4096;  ///< latency samples kept per stage in the trace ring
+  platform::LogLevel log_level = platform::LogLevel::kInfo;  ///< least severe log level printed
 
   template <class V>
   void visit(V& v) {
@@ -119,7 +128,8 @@ struct TelemetryOptions {
             options::Range<int>{0, 1000000});
     v.field("trace_capacity", trace_capacity, "latency trace samples kept per stage",
             options::Range<int>{16, 1 << 22});
-    v.field("log_level", log_level, "least severe log level printed", options::OneOf{kLogLevels});
+    v.field("log_level", log_level, "least severe log level printed",
+            options::Names<platform::LogLevel>{kLogLevelNames});
   }
 };
 

@@ -32,7 +32,7 @@ void bm_extract(benchmark::State& state, const char* backend, int opencv_threads
     return;
   }
   ExtractorOptions o;
-  o.backend = backend;
+  (void)options::parse_name(backend, kExtractorBackendNames, o.backend);
   o.num_features = 1000;
   auto made = make_extractor(o, gray.cols, gray.rows);
   if (!made.is_ok()) {

@@ -96,11 +96,11 @@ void bm_tracking(benchmark::State& state) {
     mo.max_points = 50000;
     auto map = std::make_unique<map::Map>(mo);
     frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
-                              "rgbd", false);
+                              SensorMode::kRgbd, false);
     (void)tracker.init();
     const backend::LocalBaOptions ba_opts;
-    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2(),
-                                   ba_opts.depth_sigma_rel);
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, SensorMode::kRgbd, *map,
+                                   tracker.level_sigma2(), ba_opts.depth_sigma_rel);
     (void)builder.init();
     backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), true, true);
     map::KeyframeJob job;
@@ -182,14 +182,14 @@ void bm_tracking_kidnap(benchmark::State& state) {
     mo.max_points = 50000;
     auto map = std::make_unique<map::Map>(mo);
     frontend::Tracker tracker(frontend::TrackingOptions{}, *map, seq.K, seq.width, seq.height,
-                              "rgbd", false);
+                              SensorMode::kRgbd, false);
     (void)tracker.init();
     tracker.enable_relocalization(true);
     frontend::RelocalizationRequest req;
     tracker.reserve_relocalization_request(req);
     const backend::LocalBaOptions ba_opts;
-    depth::KeyframeBuilder builder(depth::DepthOptions{}, "rgbd", *map, tracker.level_sigma2(),
-                                   ba_opts.depth_sigma_rel);
+    depth::KeyframeBuilder builder(depth::DepthOptions{}, SensorMode::kRgbd, *map,
+                                   tracker.level_sigma2(), ba_opts.depth_sigma_rel);
     (void)builder.init();
     backend::LocalBundleAdjuster ba(ba_opts, *map, tracker.level_sigma2(), true, true);
     loop::KeyframeDatabase db(*map);
@@ -259,7 +259,7 @@ void bm_tracking_kidnap(benchmark::State& state) {
 // tracker asks for and calls on_keyframe(ba, keyframe, K) after each insertion: the local BA
 // benchmarks' common set-up, run with the timing paused (on_keyframe resumes it as needed).
 template <class OnKeyframe>
-void for_each_keyframe(const Sequence& seq, const std::string& mode, OnKeyframe&& on_keyframe) {
+void for_each_keyframe(const Sequence& seq, SensorMode mode, OnKeyframe&& on_keyframe) {
   map::MapOptions mo;
   mo.max_keyframes = 128;
   mo.max_points = 50000;
@@ -290,7 +290,7 @@ void for_each_keyframe(const Sequence& seq, const std::string& mode, OnKeyframe&
 // abort latency: the longest stretch of a run without a poll of the abort flag (p50/p99, ms).
 void bm_local_ba(benchmark::State& state) {
   const Sequence& seq = sequence(state.range(0) != 0);
-  const std::string mode = state.range(0) == 0 ? "rgbd" : "mono";
+  const SensorMode mode = state.range(0) == 0 ? SensorMode::kRgbd : SensorMode::kMono;
   std::vector<double> run_ms;
   std::vector<double> gap_ms;
   double iterations = 0.0;
@@ -333,7 +333,7 @@ constexpr double kMaxAbortDelayMs = 40.0;
 
 void bm_local_ba_abort(benchmark::State& state) {
   const Sequence& seq = sequence(state.range(0) != 0);
-  const std::string mode = state.range(0) == 0 ? "rgbd" : "mono";
+  const SensorMode mode = state.range(0) == 0 ? SensorMode::kRgbd : SensorMode::kMono;
   std::vector<double> latency_ms;
   double max_gap_ms = 0.0;
   std::mt19937 rng(11);

@@ -133,7 +133,7 @@ TEST(PipelineThreaded, CameraRateRunAccountsForEveryFrame) {
 // (~40 keyframes when the machine keeps up; fewer under TSan on a loaded machine.)
 TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
   const RunResult r = run_threaded("mer_threaded_backend", 150, 30.0, 0, [](PipelineConfig& pc) {
-    pc.pipeline.mode = "rgbd";
+    pc.pipeline.mode = SensorMode::kRgbd;
     pc.map.max_keyframes = 12;
     pc.culling.point_min_observations = 2;  // culls young points seen once
     // A keyframe every ~3 frames and long BA runs: the builder inserts while a BA solves
@@ -185,7 +185,7 @@ TEST(PipelineThreaded, KeyframesLocalBaAndCullingOnTheirThreads) {
 // the correction the tracker follows at its next frame.
 TEST(PipelineThreaded, LoopClosureRunsBesideTracking) {
   const RunResult r = run_threaded("mer_threaded_loop", 400, 20.0, 0, [](PipelineConfig& pc) {
-    pc.pipeline.mode = "rgbd";
+    pc.pipeline.mode = SensorMode::kRgbd;
     pc.loop.min_keyframe_gap = 10;
   });
   const PipelineStats& s = r.stats;

@@ -80,7 +80,7 @@ void write_png_mm(const std::string& path, const cv::Mat& m) {
 
 depth::DepthOptions external(const std::string& folder) {
   depth::DepthOptions o;
-  o.backend = "external";
+  o.backend = depth::DepthBackend::kExternal;
   o.external.folder = folder;
   o.external.depth_scale = kMmPerM;
   return o;
@@ -89,7 +89,7 @@ depth::DepthOptions external(const std::string& folder) {
 TEST(DepthMaps, OtherBackendsNeedNone) {
   depth::DepthOptions o;
   for (const char* b : {"auto", "triangulation", "rgbd", "plane_sweep"}) {
-    o.backend = b;
+    ASSERT_TRUE(options::parse_name(b, depth::kDepthBackendNames, o.backend)) << b;
     auto r = open_depth_maps(o);
     ASSERT_TRUE(r.is_ok()) << b;
     EXPECT_EQ(r.value(), nullptr) << b;

@@ -155,7 +155,7 @@ Errors errors(const map::Map& map, const Scene& s) {
   return e;
 }
 
-LocalBaOptions opts(const char* depth_edges) {
+LocalBaOptions opts(DepthEdgeSetting depth_edges) {
   LocalBaOptions o;
   o.max_iterations = 30;
   o.depth_edges = depth_edges;
@@ -167,7 +167,7 @@ TEST(LocalBa, NoisyGraphConvergesToGroundTruthWithMetricDepth) {
   map::Map map(small_map());
   const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.05, 0.02, 0.05);
   const Errors before = errors(map, s);
-  LocalBundleAdjuster ba(opts("auto"), map, {1.0F}, true, /*metric_depth=*/true);
+  LocalBundleAdjuster ba(opts(DepthEdgeSetting::kAuto), map, {1.0F}, true, /*metric_depth=*/true);
   EXPECT_EQ(ba.depth_edge_mode(), "metric");
   const LocalBaReport rep = ba.spin_once(s.kf.back(), kK);
   ASSERT_TRUE(rep.ran);
@@ -199,7 +199,7 @@ TEST(LocalBa, AnchoredKeypointsWeighMoreWhenTheirSigmaIsScaled) {
         EXPECT_TRUE(map.set_keypoint_anchored(kf, kp, mark));
       }
     }
-    LocalBaOptions o = opts("auto");
+    LocalBaOptions o = opts(DepthEdgeSetting::kAuto);
     o.depth_sigma_rel = 0.05;  // weak depth edges: the keypoints decide
     o.anchored_sigma_scale = scale;
     o.anchored_min_observations = min_anchored;
@@ -244,7 +244,7 @@ TEST(LocalBa, AnchoredKeypointsKeepTheirLevelsOutlierGate) {
       const features::Keypoint& k = map.keyframe_keypoints(kf)[kp];
       EXPECT_TRUE(map.set_keypoint_position(kf, kp, k.x + shift, k.y));
     }
-    LocalBaOptions o = opts("off");
+    LocalBaOptions o = opts(DepthEdgeSetting::kOff);
     o.anchored_sigma_scale = scale;
     LocalBundleAdjuster ba(o, map, {1.0F}, true, /*metric_depth=*/true);
     return ba.spin_once(s.kf.back(), kK);
@@ -268,7 +268,7 @@ TEST(LocalBa, AnchoredKeypointsKeepTheirLevelsOutlierGate) {
 TEST(LocalBa, NewKeyframeShiftIsMeasuredAgainstItsInsertedPose) {
   map::Map map(small_map());
   const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.0, 0.0, 0.0);
-  LocalBundleAdjuster ba(opts("auto"), map, {1.0F}, true, /*metric_depth=*/true);
+  LocalBundleAdjuster ba(opts(DepthEdgeSetting::kAuto), map, {1.0F}, true, /*metric_depth=*/true);
   ASSERT_TRUE(ba.spin_once(s.kf[kKeyframes - 2], kK).ran);
   EXPECT_EQ(ba.totals().new_keyframe_runs, 0U);  // no keyframe before it to measure a step from
   const Eigen::Vector3d step =
@@ -290,7 +290,7 @@ TEST(LocalBa, NewKeyframeShiftIsMeasuredAgainstItsInsertedPose) {
 // through the one fixed keyframe; metric 3D-3D edges pin it. With every point displaced
 // along its ray by a common factor the difference shows.
 TEST(LocalBa, MetricDepthEdgesFixTheScale) {
-  for (const char* mode : {"off", "metric"}) {
+  for (DepthEdgeSetting mode : {DepthEdgeSetting::kOff, DepthEdgeSetting::kMetric}) {
     map::Map map(small_map());
     const Scene s = build(map, std::vector<double>(kKeyframes, 1.0), 0.0, 0.0, 0.0);
     // Shrink the map about keyframe 0's centre by 10 %: poses (but keyframe 0) and points.
@@ -307,7 +307,7 @@ TEST(LocalBa, MetricDepthEdgesFixTheScale) {
     SE3d T_last;
     ASSERT_TRUE(map.keyframe_pose(s.kf.back(), T_last));
     const double scale = T_last.translation().norm() / s.T_w_c.back().translation().norm();
-    if (std::string(mode) == "off") {
+    if (mode == DepthEdgeSetting::kOff) {
       EXPECT_LT(scale, 0.95) << "reprojection alone cannot see the scale";
     } else {
       EXPECT_NEAR(scale, 1.0, 0.01);
@@ -322,7 +322,7 @@ TEST(LocalBa, ScaledModeRecoversAKeyframeDepthScale) {
   scales[3] = 1.25;
   map::Map map(small_map());
   const Scene s = build(map, scales, 0.02, 0.01, 0.02);
-  LocalBundleAdjuster ba(opts("scaled"), map, {1.0F}, true, false);
+  LocalBundleAdjuster ba(opts(DepthEdgeSetting::kScaled), map, {1.0F}, true, false);
   ASSERT_TRUE(ba.spin_once(s.kf.back(), kK).ran);
   const Errors after = errors(map, s);
   EXPECT_LT(after.max_position_m, 0.005);
@@ -342,7 +342,7 @@ TEST(LocalBa, GrossDepthOutlierIsRemoved) {
   map::Map map(small_map());
   const Scene s =
       build(map, std::vector<double>(kKeyframes, 1.0), 0.02, 0.01, 0.02, /*outlier kp=*/5);
-  LocalBaOptions o = opts("metric");
+  LocalBaOptions o = opts(DepthEdgeSetting::kMetric);
   o.resolve_without_outliers = true;
   LocalBundleAdjuster ba(o, map, {1.0F}, true, true);
   const LocalBaReport rep = ba.spin_once(s.kf.back(), kK);
@@ -365,7 +365,7 @@ TEST(LocalBa, SecondSolveWithoutTheOutliersIsAnOption) {
     map::Map map(small_map());
     const Scene s =
         build(map, std::vector<double>(kKeyframes, 1.0), 0.02, 0.01, 0.02, /*outlier kp=*/5);
-    LocalBaOptions o = opts("metric");
+    LocalBaOptions o = opts(DepthEdgeSetting::kMetric);
     o.resolve_without_outliers = resolve;
     o.outlier_chi2 = outlier_chi2;
     if (outlier_chi2 > LocalBaOptions{}.outlier_chi2) o.depth_outlier_chi2 = outlier_chi2;
@@ -415,7 +415,7 @@ struct BigWindow {
 // has completed `n` iterations (or ended; bounded, so a hung solver fails the test, not CI).
 struct BackgroundRun : BigWindow {
   LocalBaOptions o = [] {
-    LocalBaOptions v = opts("metric");
+    LocalBaOptions v = opts(DepthEdgeSetting::kMetric);
     v.max_iterations = 100000;
     v.window_keyframes = 8;
     v.max_time_ms = 1e5;
@@ -483,7 +483,7 @@ struct PollLog {
 
 struct AbortFixture : BigWindow {
   LocalBaOptions o = [] {
-    LocalBaOptions v = opts("metric");
+    LocalBaOptions v = opts(DepthEdgeSetting::kMetric);
     v.max_iterations = 50;
     v.window_keyframes = 8;
     v.outlier_chi2 = 1e9;  // no outliers: one solve, comparable to an aborted run
@@ -691,7 +691,7 @@ TEST(LocalBa, WallTimeBudgetBoundsTheRun) {
   constexpr int kBigPoints = 3000;
   map::Map map(small_map(kBigPoints));
   const Scene s = build(map, std::vector<double>(8, 1.0), 0.05, 0.02, 0.05, -1, 8, kBigPoints);
-  LocalBaOptions o = opts("metric");
+  LocalBaOptions o = opts(DepthEdgeSetting::kMetric);
   o.max_iterations = 100000;
   o.window_keyframes = 8;
   o.max_time_ms = 30.0;

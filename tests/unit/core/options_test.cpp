@@ -143,7 +143,7 @@ TEST(Options, ValidatorCatchesProgrammaticValues) {
 TEST(Options, PrintedSlamConfigRoundTrips) {
   app::SlamConfig a;
   a.tracking.extractor.fast_threshold = 33;
-  a.pipeline.mode = "rgbd";
+  a.pipeline.mode = SensorMode::kRgbd;
   a.camera.synthetic.noise_sigma = 1.25;
   a.board.lock_memory = true;
   std::ostringstream os;
@@ -155,7 +155,7 @@ TEST(Options, PrintedSlamConfigRoundTrips) {
   options::print(b, os2);
   EXPECT_EQ(os.str(), os2.str());
   EXPECT_EQ(b.tracking.extractor.fast_threshold, 33);
-  EXPECT_EQ(b.pipeline.mode, "rgbd");
+  EXPECT_EQ(b.pipeline.mode, SensorMode::kRgbd);
   EXPECT_DOUBLE_EQ(b.camera.synthetic.noise_sigma, 1.25);
   EXPECT_TRUE(b.board.lock_memory);
 }

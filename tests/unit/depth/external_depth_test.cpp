@@ -212,7 +212,7 @@ TEST_F(ExternalDepthTest, ScaleFollowsTheOption) {
   MemoryMaps maps;
   ExternalDepthOptions opts;
   EXPECT_EQ(ExternalDepth(opts, maps).scale(), DepthScale::kUnknown);
-  opts.scale = "metric";
+  opts.scale = ExternalDepthScale::kMetric;
   EXPECT_EQ(ExternalDepth(opts, maps).scale(), DepthScale::kMetric);
 }
 

@@ -82,7 +82,7 @@ Outcome run(bool align, const std::function<void(DepthOptions&)>& tweak = {}) {
   DepthOptions opts;
   opts.align_keypoints = align;
   if (tweak) tweak(opts);
-  KeyframeBuilder builder(opts, "rgbd", map, sigma2);
+  KeyframeBuilder builder(opts, SensorMode::kRgbd, map, sigma2);
   EXPECT_TRUE(builder.init().is_ok());
 
   // Keyframe A: its detections become points at their true (sensor) depth.

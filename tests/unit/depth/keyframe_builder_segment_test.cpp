@@ -37,7 +37,7 @@ TEST(KeyframeBuilderSegments, AnotherSegmentsKeyframesAreNotFusedOrUsedAsNeighbo
   ASSERT_TRUE(ex.is_ok());
   std::vector<float> sigma2;
   for (int l = 0; l < ex.value()->num_levels(); ++l) sigma2.push_back(ex.value()->level_sigma2(l));
-  KeyframeBuilder builder(DepthOptions{}, "rgbd", map, sigma2);
+  KeyframeBuilder builder(DepthOptions{}, SensorMode::kRgbd, map, sigma2);
   ASSERT_TRUE(builder.init().is_ok());
 
   map::KeyframeJob job;

@@ -382,7 +382,7 @@ TEST(PlaneSweepTest, InvalidInputIsReported) {
   expect_error(in, "max_sources");
 
   PlaneSweepOptions bad;
-  bad.cost = "sad";
+  bad.cost = static_cast<PlaneSweepCost>(7);  // no such cost
   PlaneSweepStereo invalid(bad);
   EXPECT_FALSE(invalid.status().is_ok());
   EXPECT_NE(invalid.status().message().find("cost"), std::string::npos)

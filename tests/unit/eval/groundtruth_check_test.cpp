@@ -150,7 +150,7 @@ map::MapOptions small_map() {
 
 backend::LocalBaOptions ba_options() {
   backend::LocalBaOptions o;
-  o.depth_edges = "off";
+  o.depth_edges = backend::DepthEdgeSetting::kOff;
   return o;
 }
 

@@ -90,7 +90,7 @@ std::unique_ptr<Extractor> make(const ExtractorOptions& o, int w = kWidth, int h
 
 ExtractorOptions backend(const char* name) {
   ExtractorOptions o;
-  o.backend = name;
+  EXPECT_TRUE(options::parse_name(name, kExtractorBackendNames, o.backend)) << name;
   return o;
 }
 
@@ -254,7 +254,8 @@ TEST(Extractor, BadOptionsNameTheKey) {
     void (*edit)(ExtractorOptions&);
   };
   const Case cases[] = {
-      {"tracking.extractor.backend", [](ExtractorOptions& o) { o.backend = "sift"; }},
+      {"tracking.extractor.backend",
+       [](ExtractorOptions& o) { o.backend = static_cast<ExtractorBackend>(9); }},
       {"tracking.extractor.num_features", [](ExtractorOptions& o) { o.num_features = 0; }},
       {"tracking.extractor.scale_factor", [](ExtractorOptions& o) { o.scale_factor = 1.0; }},
       {"tracking.extractor.num_levels", [](ExtractorOptions& o) { o.num_levels = 0; }},

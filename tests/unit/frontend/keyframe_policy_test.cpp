@@ -207,10 +207,10 @@ TEST(KeyframePolicy, RgbdTakesItsOwnMaxSpacingAndNoParallaxGate) {
   o.max_spacing_s = 1.5;
   o.rgbd_max_spacing_s = 0.5;
   o.min_baseline_ratio = 0.03;
-  const KeyframePolicyOptions mono = o.for_mode("mono");
+  const KeyframePolicyOptions mono = o.for_mode(SensorMode::kMono);
   EXPECT_EQ(mono.max_spacing_s, 1.5);
   EXPECT_EQ(mono.min_baseline_ratio, 0.03);
-  const KeyframePolicyOptions rgbd = o.for_mode("rgbd");
+  const KeyframePolicyOptions rgbd = o.for_mode(SensorMode::kRgbd);
   EXPECT_EQ(rgbd.max_spacing_s, 0.5);
   EXPECT_EQ(rgbd.min_baseline_ratio, 0.0);
   // In effect: 16 frames at 30 Hz (0.53 s) without any other criterion make a keyframe.
@@ -218,7 +218,7 @@ TEST(KeyframePolicy, RgbdTakesItsOwnMaxSpacingAndNoParallaxGate) {
   quiet.min_inliers = 0;
   quiet.min_inlier_ratio = 0.0;
   quiet.min_spread = 0.0;
-  KeyframePolicy policy(quiet.for_mode("rgbd"), kWidth, kHeight);
+  KeyframePolicy policy(quiet.for_mode(SensorMode::kRgbd), kWidth, kHeight);
   policy.reset(100, 0);
   EXPECT_EQ(policy.decide(evidence(Spread(100), nullptr, 15)), KeyframeReason::kNone);
   EXPECT_EQ(policy.decide(evidence(Spread(100), nullptr, 16)), KeyframeReason::kMaxSpacing);

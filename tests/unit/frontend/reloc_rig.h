@@ -23,9 +23,9 @@ constexpr int kTrackedFrames = 90;  // tracked before the loss
 /// frame is the first camera's, in metres).
 class RelocRig {
  public:
-  /// `mode` "rgbd" or "mono"; `path` (when set) replaces the room_orbit trajectory: the true
+  /// `path` (when set) replaces the room_orbit trajectory: the true
   /// camera-to-world pose of frame i in the camera's room.
-  explicit RelocRig(const TrackingOptions& topts, const char* mode = "rgbd",
+  explicit RelocRig(const TrackingOptions& topts, SensorMode mode = SensorMode::kRgbd,
                     std::function<SE3d(const hal::SyntheticCamera&, int)> path = {})
       : path_(std::move(path)) {
     cam_opts_.num_frames = 100000;

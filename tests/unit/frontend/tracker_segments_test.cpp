@@ -129,7 +129,7 @@ SE3d sway(const hal::SyntheticCamera& cam, int i) {
 // A return to an earlier segment that fails (the relocalizer's pose finds nothing) goes back
 // to starting the new segment from the reference frame it had: the start does not begin again.
 TEST(TrackerSegments, FailedReturnKeepsTheNewSegmentsReference) {
-  RelocRig rig(options(true), "mono", sway);
+  RelocRig rig(options(true), SensorMode::kMono, sway);
   int i = 0;
   int tracked = 0;
   for (; i < 90; ++i) tracked += rig.step(i).state == TrackState::kTracked ? 1 : 0;

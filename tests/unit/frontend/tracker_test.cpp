@@ -70,7 +70,7 @@ double ate_sim3(const std::vector<Eigen::Vector3d>& est, const std::vector<Eigen
 }
 
 template <typename PoseFn>
-RunOutcome run(Rig& rig, int frames, PoseFn&& pose_at, const std::string& mode, bool focal_auto,
+RunOutcome run(Rig& rig, int frames, PoseFn&& pose_at, SensorMode mode, bool focal_auto,
                double focal_guess_scale = 1.0, const TrackingOptions& topts = {}) {
   map::MapOptions mopts;
   mopts.max_keyframes = 200;
@@ -125,7 +125,8 @@ RunOutcome run(Rig& rig, int frames, PoseFn&& pose_at, const std::string& mode, 
   out.counters = tracker.counters();
   if (out.est.size() >= 3) {
     out.ate_rmse =
-        ate_sim3(out.est, out.gt, mode == "rgbd" ? eval::Alignment::kSe3 : eval::Alignment::kSim3);
+        ate_sim3(out.est, out.gt,
+                 mode == SensorMode::kRgbd ? eval::Alignment::kSe3 : eval::Alignment::kSim3);
   }
   return out;
 }
@@ -138,7 +139,7 @@ TEST(TrackerSynthetic, PureRotationIsRefusedNotInitialized) {
     return look_at(eye, eye + Eigen::Vector3d(std::cos(a), std::sin(a), 0.05),
                    Eigen::Vector3d::UnitZ());
   };
-  const RunOutcome o = run(rig, 60, pose, "mono", false);
+  const RunOutcome o = run(rig, 60, pose, SensorMode::kMono, false);
   EXPECT_FALSE(o.initialized);
   EXPECT_GT(o.counters.init_attempts, 0U);
   EXPECT_EQ(o.counters.init_refusals, o.counters.init_attempts);
@@ -148,7 +149,7 @@ TEST(TrackerSynthetic, StaticStartIsRefused) {
   Rig rig;
   const SE3d T = rig.cam->sample_at(0.0).T_w_c;
   const RunOutcome o = run(
-      rig, 30, [&](int) { return T; }, "mono", false);
+      rig, 30, [&](int) { return T; }, SensorMode::kMono, false);
   EXPECT_FALSE(o.initialized);
 }
 
@@ -160,7 +161,8 @@ TEST(TrackerSynthetic, StaticStartIsRefused) {
 TEST(TrackerSynthetic, MonocularOrbitTracksEveryFrameAfterInit) {
   Rig rig;
   const RunOutcome o = run(
-      rig, 420, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "mono", false);
+      rig, 420, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, SensorMode::kMono,
+      false);
   ASSERT_TRUE(o.initialized);
   EXPECT_LT(o.init_seq, 300U);
   EXPECT_GE(o.tracked_after_init, 0.98 * o.frames_after_init);
@@ -183,7 +185,7 @@ TEST(TrackerSynthetic, PlaneHintsInitializeOnTheWallWithTheTrueMotion) {
   TrackingOptions topts;
   topts.init.plane_hints = true;
   auto pose = [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; };
-  const RunOutcome o = run(rig, 90, pose, "mono", false, 1.0, topts);
+  const RunOutcome o = run(rig, 90, pose, SensorMode::kMono, false, 1.0, topts);
   ASSERT_TRUE(o.initialized) << "no initialization in 90 frames";
   EXPECT_LT(o.init_seq, 90U);
   // The world frame is the reference camera: compare with the true relative motion.
@@ -204,14 +206,15 @@ TEST(TrackerSynthetic, PlaneHintsInitializeOnTheWallWithTheTrueMotion) {
   EXPECT_LT(rot_err_deg, 1.5);
   EXPECT_LT(dir_err_deg, 6.0);
   // Without the hints the same frames are all refused.
-  EXPECT_FALSE(run(rig, 90, pose, "mono", false).initialized);
+  EXPECT_FALSE(run(rig, 90, pose, SensorMode::kMono, false).initialized);
 }
 
 // RGB-D: metric from the first frame; the target is ATE <= 1 cm.
 TEST(TrackerSynthetic, RgbdOrbitTracksFromTheFirstFrame) {
   Rig rig;
   const RunOutcome o = run(
-      rig, 300, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "rgbd", false);
+      rig, 300, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, SensorMode::kRgbd,
+      false);
   ASSERT_TRUE(o.initialized);
   EXPECT_EQ(o.init_seq, 0U);
   EXPECT_GE(o.tracked_after_init, 0.98 * o.frames_after_init);
@@ -227,8 +230,8 @@ TEST(TrackerSynthetic, OneLevelPyramidTracks) {
   TrackingOptions topts;
   topts.extractor.num_levels = 1;
   const RunOutcome o = run(
-      rig, 60, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "rgbd", false, 1.0,
-      topts);
+      rig, 60, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, SensorMode::kRgbd, false,
+      1.0, topts);
   ASSERT_TRUE(o.initialized);
   EXPECT_GE(o.tracked_after_init, 0.95 * o.frames_after_init);
   EXPECT_LT(o.ate_rmse, 0.02);
@@ -238,7 +241,8 @@ TEST(TrackerSynthetic, FocalEstimatedFromAGuessThirtyPercentOff) {
   for (const double scale : {0.7, 1.3}) {
     Rig rig;
     const RunOutcome o = run(
-        rig, 320, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, "mono", true, scale);
+        rig, 320, [&](int i) { return rig.cam->sample_at(i / kFps).T_w_c; }, SensorMode::kMono,
+        true, scale);
     ASSERT_TRUE(o.initialized) << "guess x" << scale;
     const double truth = rig.pinhole().fx;
     EXPECT_LT(std::abs(o.focal - truth) / truth, 0.02)

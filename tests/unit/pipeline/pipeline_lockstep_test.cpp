@@ -21,7 +21,7 @@ std::string read_file(const std::filesystem::path& p) {
 }
 
 PipelineStats run_once(const std::filesystem::path& dir, int frames, std::uint64_t seed = 1,
-                       const std::string& mode = "rgbd") {
+                       SensorMode mode = SensorMode::kRgbd) {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   hal::SyntheticOptions so;
@@ -65,8 +65,8 @@ TEST(PipelineLockstep, SameInputGivesByteIdenticalOutputs) {
 // refuses until frame ~280).
 TEST(PipelineLockstep, MonocularRunsAreByteIdentical) {
   const auto base = std::filesystem::temp_directory_path() / "mer_lockstep_det_mono";
-  const PipelineStats a = run_once(base / "a", 150, 5, "mono");
-  const PipelineStats b = run_once(base / "b", 150, 5, "mono");
+  const PipelineStats a = run_once(base / "a", 150, 5, SensorMode::kMono);
+  const PipelineStats b = run_once(base / "b", 150, 5, SensorMode::kMono);
   ASSERT_TRUE(a.tracker.initialized);
   EXPECT_GT(a.keyframes, 2U);
   for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv"}) {
@@ -142,7 +142,7 @@ TEST(PipelineLockstep, RgbdModeNeedsDepth) {
   hal::SyntheticCamera cam("room_orbit", so, false);
   ASSERT_TRUE(cam.open(8).is_ok());
   PipelineConfig pc;
-  pc.pipeline.mode = "rgbd";
+  pc.pipeline.mode = SensorMode::kRgbd;
   std::atomic<bool> stop{false};
   Pipeline p(pc, cam, stop);
   const Status s = p.init("");
