@@ -589,6 +589,13 @@ KeyframeBuildReport KeyframeBuilder::insert_segment_start(const map::KeyframeJob
   ref.descriptors = std::span<const features::Descriptor>(st.ref_descriptors.data(), m);
   ref.depth = std::span<const float>(st.ref_depth.data(), m);
   ref.depth_confidence = std::span<const float>(st.ref_confidence.data(), m);
+  if (map_.segment_start(job.segment).state != map::SegmentStartState::kPending) {
+    // A segment starts once: one refused before holds nothing and is not written now.
+    MER_LOG_ERROR("map segment %u: started or refused before; its start is not inserted",
+                  unsigned{job.segment});
+    ++totals_.failures;
+    return rep;
+  }
   const Result<map::KeyframeId> first = map_.add_keyframe(mono ? ref : cur);
   const Result<map::KeyframeId> second =
       mono && first.is_ok() ? map_.add_keyframe(cur) : Result<map::KeyframeId>(first);

@@ -849,14 +849,18 @@ Tracker::StartPoll Tracker::poll_segment_start() {
   if (rec.state == map::SegmentStartState::kRefused) {
     // Never written (map full): this segment id holds nothing; initialize the next one.
     ++counters_.segment_starts_refused;
-    MER_LOG_WARN("map segment %u: its start was refused by the map; starting segment %u",
-                 unsigned{segment_}, unsigned{segments_started_});
-    if (segments_started_ >= opts_.max_segments) return StartPoll::kRefused;
-    segment_ = segments_started_++;
     initialized_ = false;
     ref_valid_ = false;
     have_pose_ = false;
     poor_prediction_ = true;
+    if (segments_started_ >= opts_.max_segments) {
+      MER_LOG_WARN("map segment %u: its start was refused by the map (no segment id left)",
+                   unsigned{segment_});
+      return StartPoll::kRefused;
+    }
+    MER_LOG_WARN("map segment %u: its start was refused by the map; starting segment %u",
+                 unsigned{segment_}, unsigned{segments_started_});
+    segment_ = segments_started_++;
     return StartPoll::kRefused;
   }
   // In the map: the tracked-point histogram of the start frame (every point was made in the
@@ -1325,8 +1329,6 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     while (platform::monotonic_now_ns() < until) {
     }
   }
-  // A relocalizer's pose against another segment's keyframe (lost in a new segment, or
-  // relocalizing in one) returns to the segment it was found in.
   start_to_queue_ = false;  // the last frame's start was queued (or keyframe_not_queued said not)
   if (start_pending_) {
     // The segment's first keyframes are not in the map yet (threaded: keyframe creation is
@@ -1341,6 +1343,8 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
       return r;
     }
   }
+  // A relocalizer's pose against another segment's keyframe (lost in a new segment, or
+  // relocalizing in one) returns to the segment it was found in.
   const std::uint16_t segment_before = segment_;
   const bool initialized_before = initialized_;
   const bool returning =
