@@ -291,8 +291,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"trusted_at_once\": " << tc.relocalization_trusted
     << ", \"to_confirm\": " << tc.relocalization_candidates
     << ", \"confirmed\": " << tc.relocalization_confirmed
+    << ", \"longer_checks\": " << tc.relocalization_longer_checks
     << ", \"rejected\": {\"lost_while_confirming\": " << tc.relocalization_rejected_lost
-    << ", \"few_found_in_view\": " << tc.relocalization_rejected_found << "}},\n";
+    << ", \"few_found_in_view\": " << tc.relocalization_rejected_found
+    << ", \"outside_motion_bound\": " << tc.relocalization_rejected_bound << "}},\n";
   // Ground-truth audit of relocalizations and loops (when the source had ground truth).
   if (info.events.available) {
     const EventAuditReport& ev = info.events;

@@ -515,6 +515,7 @@ void Tracker::advance_state(TrackingResult& r) {
           (T_c_w_.inverse().translation() - last_tracked_T_c_w_.inverse().translation()) / dt;
     }
     lost_frames_ = 0;
+    spell_places_used_ = 0;  // a new spell weighs its own offers
     last_tracked_t_ns_ = r.t_ns;
     last_tracked_T_c_w_ = T_c_w_;
     last_tracked_segment_ = segment_;
@@ -566,11 +567,11 @@ void Tracker::start_new_segment(std::uint64_t seq) {
   force_keyframe_ = false;
 }
 
-bool Tracker::within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
-                                  std::uint16_t segment) const {
+Tracker::MotionBound Tracker::motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
+                                           std::uint16_t segment) const {
   const RelocalizationCheckOptions& o = opts_.relocalization_check;
   const double lost_s = static_cast<double>(t_ns - last_tracked_t_ns_) * 1e-9;
-  if (segment != last_tracked_segment_ || lost_s > o.short_loss_s) return false;
+  if (segment != last_tracked_segment_ || lost_s > o.short_loss_s) return MotionBound::kNone;
   // Where the last tracked velocity was taking the camera.
   const double w = last_tracked_omega_.norm();
   const Eigen::Matrix3d R_pred =
@@ -590,7 +591,33 @@ bool Tracker::within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns,
       "relocalization after %.2f s: %.3f from the predicted position (bound %.3f), %.1f deg "
       "from the predicted orientation (bound %.1f)",
       lost_s, moved, max_moved, turned_deg, max_turned_deg);
-  return moved <= max_moved && turned_deg <= max_turned_deg;
+  return moved <= max_moved && turned_deg <= max_turned_deg ? MotionBound::kWithin
+                                                            : MotionBound::kOutside;
+}
+
+int Tracker::place_refusals(map::KeyframeId kf) const {
+  int n = 0;
+  for (std::size_t i = 0; i < spell_places_used_; ++i) {
+    const SpellPlace& p = spell_places_[i];
+    if (map_.keyframe_generation(p.kf) != p.generation) continue;  // gone since
+    if (p.kf == kf || map_.covisibility_weight(p.kf, kf) > 0) n += p.refusals;
+  }
+  return n;
+}
+
+void Tracker::count_place_refusal(map::KeyframeId kf, map::Generation gen) {
+  if (kf == map::kNoId) return;
+  std::size_t least = 0;
+  for (std::size_t i = 0; i < spell_places_used_; ++i) {
+    SpellPlace& p = spell_places_[i];
+    if (p.kf == kf && p.generation == gen) {
+      ++p.refusals;
+      return;
+    }
+    if (p.refusals < spell_places_[least].refusals) least = i;
+  }
+  const std::size_t slot = spell_places_used_ < kSpellPlaces ? spell_places_used_++ : least;
+  spell_places_[slot] = SpellPlace{kf, gen, 1};
 }
 
 double Tracker::recent_found_share() const {
@@ -600,6 +627,7 @@ double Tracker::recent_found_share() const {
 }
 
 void Tracker::reject_candidate() {
+  count_place_refusal(candidate_kf_, candidate_generation_);
   candidate_ = false;
   candidate_frames_ = 0;
   reloc_keyframe_ = map::kNoId;
@@ -670,9 +698,22 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   // the motion bound it is trusted at once; otherwise it is a candidate that the following
   // frames must confirm (tracking.relocalization_check).
   const RelocalizationCheckOptions& check = opts_.relocalization_check;
-  const bool from_hint =
-      !candidate_ && hint_.valid &&
-      (state_ == TrackerState::kRelocalizing || state_ == TrackerState::kNewSegment);
+  bool from_hint = !candidate_ && hint_.valid &&
+                   (state_ == TrackerState::kRelocalizing || state_ == TrackerState::kNewSegment);
+  const MotionBound bound = from_hint && check.enabled
+                                ? motion_bound(hint_.T_c_w, frame.t_ns, segment_)
+                                : MotionBound::kWithin;
+  if (from_hint && bound == MotionBound::kOutside) {
+    // After a short loss the camera cannot be there: searched from the last pose instead.
+    ++counters_.relocalization_rejected_bound;
+    count_place_refusal(hint_.keyframe, hint_.generation);
+    MER_LOG_INFO(
+        "frame %llu: relocalization against the keyframe of frame %llu refused (outside the "
+        "motion bound)",
+        static_cast<unsigned long long>(frame.seq),
+        static_cast<unsigned long long>(map_.keyframe_seq(hint_.keyframe)));
+    from_hint = false;
+  }
   if (!candidate_) reloc_keyframe_ = map::kNoId;
   if (from_hint) {
     T_c_w_ = hint_.T_c_w;
@@ -682,13 +723,26 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     reloc_generation_ = hint_.generation;
     // (Threaded: the relocalizer's pose may be of a frame some frames back.)
     hint_frames_ = frame.seq > hint_.seq ? frame.seq - hint_.seq : 1U;
-    if (!check.enabled || within_motion_bound(hint_.T_c_w, frame.t_ns, segment_)) {
+    if (bound == MotionBound::kWithin) {
       ++counters_.relocalization_trusted;
     } else {
       candidate_ = true;
       candidate_frames_ = 0;
       candidate_min_ratio_ = std::numeric_limits<double>::infinity();
+      candidate_kf_ = hint_.keyframe;
+      candidate_generation_ = hint_.generation;
+      // The place's refused offers of this spell: as many more frames must confirm it.
+      const int refused = place_refusals(hint_.keyframe);
+      candidate_required_ = std::max(
+          check.confirm_frames, std::min(check.max_confirm_frames, check.confirm_frames + refused));
+      if (refused > 0) ++counters_.relocalization_longer_checks;
       ++counters_.relocalization_candidates;
+      MER_LOG_INFO(
+          "frame %llu: relocalization candidate against the keyframe of frame %llu (its place "
+          "refused %d times in this lost spell): %d frames to confirm it",
+          static_cast<unsigned long long>(frame.seq),
+          static_cast<unsigned long long>(map_.keyframe_seq(hint_.keyframe)), refused,
+          candidate_required_);
     }
   }
   hint_.valid = false;
@@ -742,7 +796,7 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
       reject_candidate();
       return false;
     }
-    if (++candidate_frames_ < check.confirm_frames) {
+    if (++candidate_frames_ < candidate_required_) {
       // Tracked from the candidate: the next frame is predicted from here; nothing is
       // reported or written until it is confirmed.
       r.state = TrackState::kLost;

@@ -14,8 +14,9 @@
 /// with depth (RGB-D). Lost frames are reported and, after
 /// `relocalize_after_lost_frames`, offered to the relocalizer (which runs outside tracking);
 /// a pose it finds is the prediction of the next frame (TrackerState: the state machine),
-/// trusted at once within the motion bound of a short loss and otherwise only once the
-/// following frames confirm it (tracking.relocalization_check; frames reported lost meanwhile).
+/// trusted at once within the motion bound of a short loss, refused outside it, and after a
+/// longer loss only once the following frames confirm it, on more of them at a place refused
+/// earlier in the lost spell (tracking.relocalization_check; frames reported lost meanwhile).
 /// Lost for `new_segment_after_s`, it initializes a new map segment (as at the start) and
 /// queries only that segment's points; a relocalization returns to the segment it found.
 ///
@@ -109,6 +110,10 @@ struct TrackerCounters {
   std::uint64_t relocalization_rejected_lost = 0;   ///< refused: a confirming frame was lost
   std::uint64_t relocalization_rejected_found = 0;  ///< refused: a confirming frame found too
                                                     ///< few of the map-points in its view
+  std::uint64_t relocalization_rejected_bound = 0;  ///< refused: after a short loss, outside
+                                                    ///< the motion bound
+  std::uint64_t relocalization_longer_checks = 0;   ///< candidates at a place refused earlier
+                                                    ///< in the spell (more frames to confirm)
   std::uint64_t segment_start_waits = 0;  ///< frames without a pose: the start not in the map yet
   std::uint64_t segment_starts_not_queued = 0;  ///< starts that found no free keyframe job
   std::uint64_t segment_starts_refused = 0;     ///< starts the map could not take (full)
@@ -212,12 +217,23 @@ class Tracker {
   /// Forgets the current segment's tracking state and initializes the next segment from the
   /// next frames (tracking.new_segments).
   void start_new_segment(std::uint64_t seq);
-  /// Whether a relocalizer's pose `T_c_w` at `t_ns` is within the motion bound of the last
-  /// tracked pose (tracking.relocalization_check).
-  bool within_motion_bound(const SE3d& T_c_w, std::int64_t t_ns, std::uint16_t segment) const;
+  /// Where a relocalizer's pose stands against the motion bound of the last tracked pose.
+  enum class MotionBound : std::uint8_t {
+    kWithin,   ///< a short loss, the pose within the bound: trusted at once
+    kOutside,  ///< a short loss, the pose outside the bound: refused
+    kNone,     ///< a long loss, or another segment: no bound, confirmed on following frames
+  };
+  /// Where a relocalizer's pose `T_c_w` at `t_ns`, in `segment`, stands against the motion
+  /// bound of the last tracked pose (tracking.relocalization_check).
+  MotionBound motion_bound(const SE3d& T_c_w, std::int64_t t_ns, std::uint16_t segment) const;
   /// Drops the pending relocalization candidate (it failed to confirm): back to the last
-  /// tracked pose (and to the new segment it was returning from).
+  /// tracked pose (and to the new segment it was returning from); its place counts a refusal.
   void reject_candidate();
+  /// Offers refused at the place of keyframe kf earlier in this lost spell (kf's own and
+  /// those of keyframes that share map-points with it).
+  int place_refusals(map::KeyframeId kf) const;
+  /// Counts one refused offer at the place of keyframe kf (generation gen).
+  void count_place_refusal(map::KeyframeId kf, map::Generation gen);
   /// In state new_segment with a relocalizer's pose: back to that keyframe's segment (its
   /// median keyframe depth as the query range). False when the keyframe is gone.
   bool return_to_segment_of_hint();
@@ -347,10 +363,23 @@ class Tracker {
   Eigen::Vector3d last_tracked_omega_ = Eigen::Vector3d::Zero();     // turn rate, rad/s (left)
   Eigen::Vector3d last_tracked_velocity_ = Eigen::Vector3d::Zero();  // centre, map units / s
   // A relocalization being confirmed (tracking.relocalization_check).
-  bool candidate_ = false;            // a candidate pose is being confirmed
-  int candidate_frames_ = 0;          // frames it has been confirmed in so far
-  double candidate_min_ratio_ = 0.0;  // lowest found share / usual share over those frames
-  bool candidate_returning_ = false;  // it returns from another segment (set_anchor)
+  bool candidate_ = false;                     // a candidate pose is being confirmed
+  int candidate_frames_ = 0;                   // frames it has been confirmed in so far
+  double candidate_min_ratio_ = 0.0;           // lowest found share / usual share over those frames
+  int candidate_required_ = 0;                 // frames it must be confirmed in (place_refusals)
+  map::KeyframeId candidate_kf_ = map::kNoId;  // the keyframe it was found against
+  map::Generation candidate_generation_ = map::kNoGeneration;
+  // Places refused in this lost spell (forgotten when a frame is tracked): a fixed table;
+  // when it is full, a new place replaces the least refused one.
+  struct SpellPlace {
+    map::KeyframeId kf = map::kNoId;
+    map::Generation generation = map::kNoGeneration;
+    int refusals = 0;
+  };
+  static constexpr std::size_t kSpellPlaces = 16;
+  std::array<SpellPlace, kSpellPlaces> spell_places_{};
+  std::size_t spell_places_used_ = 0;
+  bool candidate_returning_ = false;            // it returns from another segment (set_anchor)
   std::uint16_t candidate_segment_before_ = 0;  // the segment it returns from
   bool candidate_initialized_before_ = false;   // whether that segment was initialized
   std::uint64_t hint_frames_ = 1;               // frames between the relocalizer's pose and its use

@@ -128,13 +128,23 @@ struct FocalOptions {
 /// frames; at rest when they were not consecutive) and grows with the largest acceleration
 /// assumed, as a t^2 / 2 over the time lost t, plus a margin; translation is in median scene
 /// depths of the last tracked frame, so that it holds in map units.
-/// A pose outside the bound, or any pose after a longer loss, is a candidate: the following
-/// frames are tracked from it against the local map, and it is trusted only when
-/// `confirm_frames` of them in a row are tracked, each finding (as PnP inliers) a share of
-/// the map-points it projects into view of at least `min_found_fraction` of that share's
-/// median over the last tracked frames. A look-alike place (a repeated poster, tile or panel)
-/// explains the matched pattern but not the rest of the view. Frames of a candidate
-/// are reported lost and write nothing to the map; a candidate that fails is counted by reason.
+/// A pose outside the bound after a short loss is refused: the camera cannot be there, and
+/// the tracker keeps searching from its own last pose. A pose of another segment, or any pose
+/// after a longer loss, is a candidate: the following frames are tracked from it against the
+/// local map, and it is trusted only when `confirm_frames` of them in a row are tracked, each
+/// finding (as PnP inliers) a share of the map-points it projects into view of at least
+/// `min_found_fraction` of that share's median over the last tracked frames. A look-alike
+/// place (a repeated poster, tile or panel) explains the matched pattern but not the rest of
+/// the view.
+/// The evidence for a place is the lost spell's, not one offer's: the relocalizer offers a
+/// look-alike again and again while the camera looks at the copy, and a check that each
+/// offer fails most of the time is passed by one of them sooner or later. So every offer
+/// refused during a spell counts against its place (the keyframe it was found against and
+/// the keyframes that share map-points with it), and a candidate at a place refused n times
+/// must be confirmed on `confirm_frames + n` frames in a row (at most
+/// `max_confirm_frames`): the frames for the place outnumber the offers against it. The
+/// count is forgotten when a frame is tracked. Frames of a candidate are reported lost and
+/// write nothing to the map; a refused offer or candidate is counted by reason.
 struct RelocalizationCheckOptions {
   bool enabled = true;                   ///< check relocalizations (off: trust every pose found)
   double short_loss_s = 0.5;             ///< a loss up to this long is bounded by motion, s
@@ -144,6 +154,7 @@ struct RelocalizationCheckOptions {
   double margin_deg = 10.0;                     ///< rotation bound margin, deg
   int confirm_frames = 3;                       ///< frames a candidate must be tracked in, in a row
   double min_found_fraction = 0.4;  ///< confirming frame's found share / recent median, at least
+  int max_confirm_frames = 30;      ///< most frames a candidate at a refused place must pass
 
   template <class V>
   void visit(V& v) {
@@ -179,6 +190,11 @@ struct RelocalizationCheckOptions {
             "last tracked frames (measured on tracked frames of synthetic rooms, a corridor "
             "and KITTI: the lowest share was 0.41-0.71 of the median)",
             options::Range<double>{0.0, 1.0});
+    v.field("max_confirm_frames", max_confirm_frames,
+            "a candidate at a place whose offers were refused n times earlier in the same lost "
+            "spell must be confirmed on confirm_frames + n frames in a row, at most this many "
+            "(and at least confirm_frames)",
+            options::Range<int>{1, 100000});
   }
 };
 

@@ -363,8 +363,10 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
          map_.covisibility_weight(pending_.cand, cand) > 0);
     const int agreeing = same_place ? pending_.count + 1 : 1;
     if (!same_place && pending_.count > 0) ++totals_.rejected.inconsistent;
-    MER_LOG_DEBUG("loop: %d of %d consecutive checks agree", agreeing, opts_.consistent_checks);
-    if (agreeing < opts_.consistent_checks) {
+    const int needed = map_.keyframe_segment(cand) != segment ? opts_.merge_consistent_checks
+                                                              : opts_.consistent_checks;
+    MER_LOG_DEBUG("loop: %d of %d consecutive checks agree", agreeing, needed);
+    if (agreeing < needed) {
       pending_ = Pending{cand, serial, agreeing};
       ++rep.pending;
     } else {

@@ -78,6 +78,7 @@ struct LoopOptions {
   int full_ba_iterations = 30;       ///< full-graph BA iterations after a loop (0: none)
   int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
   int consistent_checks = 1;         ///< consecutive keyframes that must find the same place
+  int merge_consistent_checks = 1;   ///< the same, for a match onto another segment (a merge)
   double max_drift_fraction = 0.2;   ///< a loop implying more drift per path length is refused
   bool exclude_connected = false;    ///< keyframes sharing points with the new one: no candidate
   double min_time_gap_s = 3.0;       ///< candidates were made at least this long before
@@ -168,6 +169,10 @@ struct LoopOptions {
     v.field("consistent_checks", consistent_checks,
             "keyframes in a row (at most 3 apart) whose geometric check must find the same old "
             "place (the candidate or a keyframe covisible with it) before the loop is corrected",
+            options::Range<int>{1, 100});
+    v.field("merge_consistent_checks", merge_consistent_checks,
+            "consistent_checks for a match onto another segment's keyframe: no drift bound "
+            "holds between two world frames, and a merge joins them for good",
             options::Range<int>{1, 100});
     v.field("cooldown_keyframes", cooldown_keyframes,
             "keyframes after a closed loop before the next loop is looked for",

@@ -1,8 +1,10 @@
 // The tracker's check of a relocalizer's pose (tracking.relocalization_check) on rendered
 // frames: RGB-D room_orbit tracked, then black frames (tracking lost), then a pose handed in
 // as the relocalizer would. After a short loss a pose within the motion bound is trusted at
-// once and one outside it is refused when the frames do not confirm it; after a long loss even
-// the right pose is confirmed on the following frames before a frame is reported tracked.
+// once and one outside it is refused; after a long loss even the right pose is confirmed on
+// the following frames before a frame is reported tracked, on more of them at a place
+// refused earlier in the spell.
+#include <array>
 #include <numbers>
 
 #include <gtest/gtest.h>
@@ -31,10 +33,10 @@ TEST(RelocalizationCheck, RightPoseAfterAShortLossIsTrustedAtOnce) {
   EXPECT_LT((r.T_w_c.translation() - rig.truth_in_map(i).translation()).norm(), 0.05);
 }
 
-// A short loss and a wrong pose (2 m to the side, or facing away): outside the bound it is
-// a candidate, the following frames do not confirm it and it is refused; no frame is ever
-// reported tracked at it. (The tracker then finds the camera again from its last tracked
-// pose, as after any short loss: those frames are tracked at the true pose.)
+// A short loss and a wrong pose (2 m to the side, or facing away): outside the motion bound
+// the camera cannot be there, so it is refused at once, counted against its place, and the
+// tracker finds the camera again from its last tracked pose, as after any short loss: every
+// frame reported tracked is at the true pose and none is a relocalization.
 TEST(RelocalizationCheck, WrongPoseAfterAShortLossIsRefused) {
   for (const bool turned : {false, true}) {
     RelocRig rig(options());
@@ -48,18 +50,19 @@ TEST(RelocalizationCheck, WrongPoseAfterAShortLossIsRefused) {
       wrong.translation() += wrong.linear() * Eigen::Vector3d(2.0, 0.0, 0.0);  // 2 m to the right
     }
     rig.hint(i - 1, wrong);
+    int tracked = 0;
     for (int k = 0; k < 10; ++k, ++i) {
       const TrackingResult r = rig.step(i);
       if (r.state != TrackState::kTracked) continue;
+      ++tracked;
       EXPECT_FALSE(r.relocalized) << "frame " << i;
       EXPECT_LT((r.T_w_c.translation() - rig.truth_in_map(i).translation()).norm(), 0.05)
           << "frame " << i << (turned ? " (turned)" : " (shifted)");
     }
-    EXPECT_EQ(rig.counters().relocalization_candidates, 1U);
-    EXPECT_EQ(rig.counters().relocalization_confirmed, 0U);
-    EXPECT_EQ(
-        rig.counters().relocalization_rejected_lost + rig.counters().relocalization_rejected_found,
-        1U);
+    EXPECT_GT(tracked, 0) << "the camera is found again from its last pose";
+    EXPECT_EQ(rig.counters().relocalization_rejected_bound, 1U);
+    EXPECT_EQ(rig.counters().relocalization_candidates, 0U);
+    EXPECT_EQ(rig.counters().relocalization_trusted, 0U);
   }
 }
 
@@ -92,8 +95,8 @@ SE3d turned_truth(const RelocRig& rig, int i, double deg) {
 }
 
 // The bound follows the last tracked motion: after a 1/3 s loss the orbit's own turn is
-// trusted at once, but a pose turned 40 degrees against it is confirmed first. (A bound on
-// speed alone, 180 deg/s, allowed 70 degrees here: a look-alike on the next wall.)
+// trusted at once, but a pose turned 40 degrees against it is refused. (A bound on speed
+// alone, 180 deg/s, allowed 70 degrees here: a look-alike on the next wall.)
 TEST(RelocalizationCheck, BoundIsCentredOnTheLastMotion) {
   for (const bool wrong : {false, true}) {
     RelocRig rig(options());
@@ -101,7 +104,54 @@ TEST(RelocalizationCheck, BoundIsCentredOnTheLastMotion) {
     rig.hint(i - 1, wrong ? turned_truth(rig, i, 40.0) : rig.truth_in_map(i - 1));
     (void)rig.step(i);
     EXPECT_EQ(rig.counters().relocalization_trusted, wrong ? 0U : 1U);
-    EXPECT_EQ(rig.counters().relocalization_candidates, wrong ? 1U : 0U);
+    EXPECT_EQ(rig.counters().relocalization_rejected_bound, wrong ? 1U : 0U);
+    EXPECT_EQ(rig.counters().relocalization_candidates, 0U);
+  }
+}
+
+// The evidence for a place is the lost spell's: after a long loss, a pose at a place whose
+// offer was refused earlier in the spell (here a wrong pose found against the newest
+// keyframe) must be confirmed on one more frame per refusal, also when the new offer comes
+// through another keyframe that shares map-points with it. Without the earlier refusal the
+// same right pose is confirmed on confirm_frames frames.
+TEST(RelocalizationCheck, PlaceRefusedInTheSpellNeedsMoreConfirmingFrames) {
+  const TrackingOptions o = options();
+  const int confirm = o.relocalization_check.confirm_frames;
+  for (const bool refused_before : {false, true}) {
+    RelocRig rig(o);
+    int i = track_then_lose(rig, 30);
+    const map::KeyframeId newest = rig.map().newest_keyframe();
+    std::array<map::CovisibleKeyframe, 4> covis{};
+    ASSERT_GT(rig.map().covisible_keyframes(newest, covis), 0U);
+    if (refused_before) {
+      SE3d wrong = rig.truth_in_map(i - 1);
+      wrong.translation() += wrong.linear() * Eigen::Vector3d(2.0, 0.0, 0.0);
+      rig.hint(i - 1, wrong, newest);
+      const auto refusals = [&rig] {
+        return rig.counters().relocalization_rejected_lost +
+               rig.counters().relocalization_rejected_found;
+      };
+      for (int k = 0; k < 10 && refusals() == 0; ++k) {
+        EXPECT_NE(rig.step(i++).state, TrackState::kTracked);
+      }
+      EXPECT_EQ(rig.counters().relocalization_candidates, 1U);
+      ASSERT_EQ(rig.counters().relocalization_rejected_lost +
+                    rig.counters().relocalization_rejected_found,
+                1U)
+          << "the wrong pose is refused";
+    }
+    rig.hint(i - 1, rig.truth_in_map(i - 1), covis[0].id);
+    const int needed = confirm + (refused_before ? 1 : 0);
+    int frames = 0;
+    TrackingResult r;
+    do {
+      r = rig.step(i++);
+      ++frames;
+    } while (r.state != TrackState::kTracked && frames < needed + 5);
+    EXPECT_EQ(frames, needed) << (refused_before ? "refused before" : "first offer");
+    EXPECT_TRUE(r.relocalized);
+    EXPECT_EQ(rig.counters().relocalization_longer_checks, refused_before ? 1U : 0U);
+    EXPECT_LT((r.T_w_c.translation() - rig.truth_in_map(i - 1).translation()).norm(), 0.05);
   }
 }
 
