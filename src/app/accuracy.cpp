@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <numbers>
 #include <sstream>
 #include <string>
@@ -254,10 +255,12 @@ EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineSt
 }
 
 Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames,
-                          bool merged_frames) {
+                          std::span<const double> segment_scale, std::uint16_t main_segment) {
   std::ifstream in(path);
   if (!in) return input_error("cannot read '" + path + "'");
-  constexpr std::size_t kFields = 9;  // t kf_t tx ty tz qx qy qz qw
+  // t kf_t segment tx ty tz qx qy qz qw (segment 0 when it is left out: files of earlier
+  // versions).
+  constexpr std::size_t kFields = 10;
   std::string line;
   std::size_t k = 0;
   int line_no = 0;
@@ -270,15 +273,26 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
     std::istringstream ls(line);
     std::vector<std::string> tok;
     for (std::string t; ls >> t;) tok.push_back(t);
+    if (tok.size() == kFields - 1) tok.insert(tok.begin() + 2, "0");
     if (tok.size() != kFields) {
       return bad("expected " + std::to_string(kFields) + " fields, got " +
                  std::to_string(tok.size()));
     }
     std::int64_t t_ns = 0;
     if (!hal::parse_seconds_ns(tok[0], t_ns)) return bad("bad timestamp '" + tok[0] + "'");
-    // Frames of a segment merged into trajectory.txt's after the run have no anchor line:
-    // they stay as tracked (moved into its frame by the merge).
-    while (k < frames.size() && frames[k].t_ns < t_ns && merged_frames) ++k;
+    char* seg_end = nullptr;
+    const unsigned long segment = std::strtoul(tok[2].c_str(), &seg_end, 10);
+    if (seg_end != tok[2].c_str() + tok[2].size() || tok[2][0] == '-' ||
+        segment > std::numeric_limits<std::uint16_t>::max()) {
+      return bad("bad segment '" + tok[2] + "'");
+    }
+    // A frame of a segment whose frames are not in trajectory.txt (it never joined the
+    // main one) is not re-anchored.
+    double scale = 1.0;
+    if (!segment_scale.empty()) {
+      scale = segment < segment_scale.size() ? segment_scale[segment] : 0.0;
+      if (!(scale > 0.0)) continue;
+    }
     if (k >= frames.size()) return bad("more frames than trajectory.txt has");
     pipeline::AnchoredFrame& f = frames[k++];
     if (t_ns != f.t_ns) return bad("timestamp " + tok[0] + " is not trajectory.txt's next");
@@ -288,7 +302,7 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
     }
     std::array<double, 7> v{};
     for (std::size_t i = 0; i < v.size(); ++i) {
-      const std::string& s = tok[i + 2];
+      const std::string& s = tok[i + 3];
       char* end = nullptr;
       v[i] = std::strtod(s.c_str(), &end);
       if (end != s.c_str() + s.size() || !std::isfinite(v[i])) {
@@ -299,12 +313,15 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
     if (std::abs(q.norm() - 1.0) > kMaxQuaternionNormError) return bad("quaternion not unit");
     const SE3d T = make_se3(q.normalized(), Eigen::Vector3d(v[0], v[1], v[2]));
     if (f.has_anchor) {
+      // In the units of the segment it was tracked in: into trajectory.txt's.
       f.T_kf_c = T;
-    } else if (!T.isApprox(f.T_w_c, kUnanchoredPoseTolerance)) {
+      f.T_kf_c.translation() *= scale;
+    } else if (segment == main_segment && !T.isApprox(f.T_w_c, kUnanchoredPoseTolerance)) {
+      // (A joined segment's frame was moved into trajectory.txt's frame by its merge.)
       return bad("frame without keyframe does not repeat its trajectory.txt pose");
     }
   }
-  if (k != frames.size() && !merged_frames) {
+  if (k != frames.size()) {
     return input_error("'" + path + "': " + std::to_string(k) + " frames, trajectory.txt has " +
                        std::to_string(frames.size()));
   }
@@ -313,7 +330,8 @@ Status read_frame_anchors(const std::string& path, std::vector<pipeline::Anchore
 
 Status write_final_trajectory(const std::string& dir,
                               std::span<const pipeline::FinalKeyframePose> keyframes,
-                              pipeline::FinalTrajectoryStats& stats, bool merged_frames) {
+                              pipeline::FinalTrajectoryStats& stats,
+                              std::span<const double> segment_scale, std::uint16_t main_segment) {
   const std::filesystem::path d(dir);
   stats = pipeline::FinalTrajectoryStats{};
   std::error_code ec;
@@ -330,7 +348,8 @@ Status write_final_trajectory(const std::string& dir,
     frames[i].t_ns = est.value().poses[i].t_ns;
     frames[i].T_w_c = est.value().poses[i].T_w_c;
   }
-  if (Status s = read_frame_anchors((d / "frame_anchors.txt").string(), frames, merged_frames);
+  if (Status s = read_frame_anchors((d / "frame_anchors.txt").string(), frames, segment_scale,
+                                    main_segment);
       !s.is_ok()) {
     return s;
   }

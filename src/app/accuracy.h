@@ -6,6 +6,7 @@
 /// alignment for monocular runs (scale is unobservable), SE(3) for RGB-D.
 
 #include <cstddef>
+#include <cstdint>
 #include <span>
 #include <string>
 #include <vector>
@@ -87,21 +88,27 @@ struct EventAuditReport {
 EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineStats& stats,
                               const std::vector<AccuracyReport>& segments);
 
-/// Reads `path` (frame_anchors.txt: `t kf_t tx ty tz qx qy qz qw`, kf_t `-` for a frame
-/// without anchor) into `frames`, whose t_ns and T_w_c (from trajectory.txt) are set:
-/// line k must carry frame k's timestamp. Errors name the file and line.
-/// `merged_frames`: trajectory.txt also holds frames of segments merged into it after the run
-/// (no anchor line: kept as tracked).
+/// Reads `path` (frame_anchors.txt: `t kf_t segment tx ty tz qx qy qz qw`, kf_t `-` for a
+/// frame without anchor; without the segment field, segment 0) into `frames`, whose t_ns and
+/// T_w_c (from trajectory.txt) are set. `segment_scale` (per segment id: the scale from its
+/// units into trajectory.txt's, 0 when its frames are not there; empty: every line is
+/// trajectory.txt's, scale 1) selects the lines, in order: each must carry the next frame's
+/// timestamp and every frame must have one. Anchors are scaled into trajectory.txt's units;
+/// a frame without anchor of `main_segment` must repeat its trajectory.txt pose. Errors name
+/// the file and line.
 Status read_frame_anchors(const std::string& path, std::vector<pipeline::AnchoredFrame>& frames,
-                          bool merged_frames = false);
+                          std::span<const double> segment_scale = {},
+                          std::uint16_t main_segment = 0);
 
 /// Writes `dir`/trajectory_final.txt: every pose of `dir`/trajectory.txt re-anchored to
 /// `keyframes` (the final map, Pipeline::final_keyframe_poses) through
 /// `dir`/frame_anchors.txt (pipeline/final_trajectory.h). Written atomically.
-/// `merged_frames`: as read_frame_anchors.
+/// `segment_scale`, `main_segment`: as read_frame_anchors.
 Status write_final_trajectory(const std::string& dir,
                               std::span<const pipeline::FinalKeyframePose> keyframes,
-                              pipeline::FinalTrajectoryStats& stats, bool merged_frames = false);
+                              pipeline::FinalTrajectoryStats& stats,
+                              std::span<const double> segment_scale = {},
+                              std::uint16_t main_segment = 0);
 
 /// --gt-check, after every output is written: loads `dir`/groundtruth.txt, runs the
 /// ground-truth check (eval/groundtruth_check.h; it changes the map) on the pipeline's

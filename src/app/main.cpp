@@ -131,17 +131,16 @@ int main(int argc, char** argv) {
     }
     // An event is scored in its segment's own frame, as it was when it happened.
     info.events = app::audit_events(args.output_dir, pipe.stats(), info.accuracy_segments_own);
-    // The final map re-anchors the frames of segment 0 (frame_anchors.txt): only when that
-    // is trajectory.txt's segment.
-    bool main_is_0 = true;
-    bool merged = false;
-    for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      if (g.main && g.id != 0) main_is_0 = false;
-      if (g.merged_into >= 0) merged = true;
-    }
-    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0 && main_is_0) {
+    // The final map re-anchors trajectory.txt's frames: the main segment's and those of the
+    // segments that joined it, each anchor scaled by its segment's merges.
+    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
+      std::uint16_t main_segment = 0;
+      for (const pipeline::SegmentStats& g : pipe.stats().segments) {
+        if (g.main) main_segment = g.id;
+      }
+      const std::vector<double> scales = pipe.segment_scales_into_main();
       if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
-                                                 info.final_trajectory, merged);
+                                                 info.final_trajectory, scales, main_segment);
           w.is_ok()) {
         info.final_trajectory_written = true;
         info.accuracy_final = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),

@@ -43,15 +43,17 @@ int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& 
 }
 
 int format_anchor_line(char* buf, std::size_t size, std::int64_t t_ns,
-                       const std::int64_t* anchor_t_ns, const SE3d& T) {
-  char stamps[64];
-  const int n = format_seconds(stamps, sizeof stamps, t_ns);
+                       const std::int64_t* anchor_t_ns, std::uint16_t segment, const SE3d& T) {
+  char stamps[80];
+  int n = format_seconds(stamps, sizeof stamps, t_ns);
   if (anchor_t_ns == nullptr) {
-    std::snprintf(stamps + n, sizeof stamps - static_cast<std::size_t>(n), " -");
+    n += std::snprintf(stamps + n, sizeof stamps - static_cast<std::size_t>(n), " -");
   } else {
     stamps[n] = ' ';
-    format_seconds(stamps + n + 1, sizeof stamps - static_cast<std::size_t>(n) - 1, *anchor_t_ns);
+    n += 1 + format_seconds(stamps + n + 1, sizeof stamps - static_cast<std::size_t>(n) - 1,
+                            *anchor_t_ns);
   }
+  std::snprintf(stamps + n, sizeof stamps - static_cast<std::size_t>(n), " %u", unsigned{segment});
   return format_pose_line(buf, size, stamps, T);
 }
 
@@ -104,6 +106,14 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
   ++frames_;
   if (trajectory_.f == nullptr) return platform::monotonic_now_ns() - t0;
   std::array<char, kLineBuffer> line{};
+  if (r.state == frontend::TrackState::kTracked) {
+    // Every segment's frames: after the run, those of the segments joined into trajectory.txt
+    // are re-anchored with it (trajectory_final.txt).
+    const int na = format_anchor_line(line.data(), line.size(), r.t_ns,
+                                      r.has_anchor ? &r.anchor_t_ns : nullptr, r.segment,
+                                      r.has_anchor ? r.T_kf_c : r.T_w_c);
+    std::fwrite(line.data(), 1, static_cast<std::size_t>(na), anchors_.f);
+  }
   if (r.state == frontend::TrackState::kTracked && r.segment != 0) {
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
     if (File* f = segment_file(r.segment, false); f != nullptr) {
@@ -116,10 +126,6 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
-    const int na = format_anchor_line(line.data(), line.size(), r.t_ns,
-                                      r.has_anchor ? &r.anchor_t_ns : nullptr,
-                                      r.has_anchor ? r.T_kf_c : r.T_w_c);
-    std::fwrite(line.data(), 1, static_cast<std::size_t>(na), anchors_.f);
   }
   if (r.has_ground_truth) {
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c_gt);

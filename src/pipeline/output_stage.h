@@ -12,11 +12,11 @@
 ///                   (tracking.new_segments), each in that segment's own world frame; created
 ///                   when the segment tracks its first frame (files of an earlier run removed)
 /// - groundtruth.txt same format, the true pose of every frame whose source knew it
-/// - frame_anchors.txt `t kf_t tx ty tz qx qy qz qw`: every tracked frame's pose relative to
-///                   the keyframe (stamp kf_t) it was anchored to, T_kf_c; kf_t is `-` and the
-///                   pose T_w_c for a frame tracked before any keyframe existed (segment 0
-///                   only). mer_slam
-///                   re-anchors them to the final map (final_trajectory.h).
+/// - frame_anchors.txt `t kf_t segment tx ty tz qx qy qz qw`: every tracked frame's pose
+///                   (any segment) relative to the keyframe (stamp kf_t) it was anchored to,
+///                   T_kf_c, in the units of the segment it was tracked in; kf_t is `-` and
+///                   the pose T_w_c for a frame tracked before any keyframe existed. mer_slam
+///                   re-anchors those of trajectory.txt to the final map (final_trajectory.h).
 /// - frames.csv      `seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,
 ///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state,segment` for every
 ///                   processed frame
@@ -79,8 +79,9 @@ class OutputStage {
 
 /// Formats a pose line in TUM format into `buf` (no allocation); returns its length.
 int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c);
-/// Formats a frame_anchors.txt line (`anchor_t_ns` null: no anchor, `T` is T_w_c).
+/// Formats a frame_anchors.txt line of a frame tracked in `segment` (`anchor_t_ns` null: no
+/// anchor, `T` is T_w_c).
 int format_anchor_line(char* buf, std::size_t size, std::int64_t t_ns,
-                       const std::int64_t* anchor_t_ns, const SE3d& T);
+                       const std::int64_t* anchor_t_ns, std::uint16_t segment, const SE3d& T);
 
 }  // namespace mer::pipeline

@@ -266,11 +266,19 @@ Status Pipeline::join_segments() {
     g.frames = segment_stats_[i].frames;
     segment_outputs_.push_back(g);
   }
+  return join_segment_files(output_dir_, merge_records(), segment_outputs_, main_segment_);
+}
+
+std::vector<SegmentMergeRecord> Pipeline::merge_records() const {
   std::vector<SegmentMergeRecord> merges;
   for (const loop::SegmentMergeEvent& e : loop_->totals().merges) {
     merges.push_back(SegmentMergeRecord{e.from, e.into, e.seq, e.sim_into_from});
   }
-  return join_segment_files(output_dir_, merges, segment_outputs_, main_segment_);
+  return merges;
+}
+
+std::vector<double> Pipeline::segment_scales_into_main() const {
+  return segment_scales_into(merge_records(), main_segment_, segment_stats_.size());
 }
 
 Pipeline::FinishedMap Pipeline::finished_map() {
@@ -278,14 +286,15 @@ Pipeline::FinishedMap Pipeline::finished_map() {
 }
 
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
-  // Segment 0's: trajectory.txt's world frame (the other segments have their own).
-  return resolve_keyframe_poses(map_->live_keyframe_poses(0), culler_->lineage());
+  // The main segment's: trajectory.txt's world frame (the other segments have their own).
+  return resolve_keyframe_poses(map_->live_keyframe_poses(main_segment_), culler_->lineage());
 }
 
 Status Pipeline::write_final_keyframes() const {
   if (output_dir_.empty()) return Status::ok();
   // Every stage has stopped: reading the map here races with nobody.
-  const std::vector<StampedPose> poses = map_->live_keyframe_poses(0);  // as trajectory.txt
+  // The main segment's keyframes, in trajectory.txt's world frame.
+  const std::vector<StampedPose> poses = map_->live_keyframe_poses(main_segment_);
   const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));

@@ -231,9 +231,13 @@ class Pipeline {
 
   /// Counters and latency summaries (complete after run()).
   const PipelineStats& stats() const { return stats_; }
-  /// After run(): every keyframe's pose in the final map, the removed ones through their
-  /// lineage (final_trajectory.h), sorted by time.
+  /// After run(): every keyframe's pose in the final map of the main segment (trajectory.txt's
+  /// world frame, which merged segments joined), the removed ones through their lineage
+  /// (final_trajectory.h), sorted by time.
   std::vector<FinalKeyframePose> final_keyframe_poses() const;
+  /// After run(): per segment id, the scale from its units into trajectory.txt's (1 for the
+  /// main segment, the merges' scales for segments joined into it, 0 for the others).
+  std::vector<double> segment_scales_into_main() const;
   /// The finished map, for evaluation after run() (eval/groundtruth_check.h): every stage
   /// has stopped, so the caller is the map's only user.
   struct FinishedMap {
@@ -249,11 +253,12 @@ class Pipeline {
   Status run_threaded();
   void finish_stats(std::int64_t t_start_ns);
   void run_final_ba();
-  /// Writes `output_dir`/keyframes_final.txt: the live keyframes' poses in the final map
-  /// (after local BA and the final BA), in time order.
   /// Joins the segment trajectory files along the merges of the run (segment_outputs.h).
   Status join_segments();
+  /// Writes `output_dir`/keyframes_final.txt: the main segment's live keyframes' poses in the
+  /// final map (after local BA and the final BA), in time order.
   Status write_final_keyframes() const;
+  std::vector<SegmentMergeRecord> merge_records() const;
   std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;

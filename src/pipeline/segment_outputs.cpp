@@ -75,6 +75,22 @@ std::string segment_file_name(std::uint16_t segment, bool keyframes) {
   return std::string(kind) + "_segment_" + std::to_string(segment) + ".txt";
 }
 
+std::vector<double> segment_scales_into(std::span<const SegmentMergeRecord> merges,
+                                        std::uint16_t main, std::size_t segments) {
+  std::vector<double> scales(segments, 0.0);
+  for (std::size_t g = 0; g < segments; ++g) {
+    double scale = 1.0;
+    auto at = static_cast<std::uint16_t>(g);
+    for (const SegmentMergeRecord& m : merges) {
+      if (m.from != at) continue;
+      scale *= m.sim_into_from.s;
+      at = m.into;
+    }
+    if (at == main) scales[g] = scale;
+  }
+  return scales;
+}
+
 Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRecord> merges,
                           std::vector<SegmentOutput>& segments, std::uint16_t& main) {
   main = 0;

@@ -48,4 +48,11 @@ std::string segment_file_name(std::uint16_t segment, bool keyframes);
 Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRecord> merges,
                           std::vector<SegmentOutput>& segments, std::uint16_t& main);
 
+/// Per segment id (`segments` of them), the scale from that segment's units into those of
+/// segment `main` along `merges` (in the order they happened): 1 for `main`, the product of
+/// the merges' scales for a segment that joined it (directly or through others), 0 for a
+/// segment that did not.
+std::vector<double> segment_scales_into(std::span<const SegmentMergeRecord> merges,
+                                        std::uint16_t main, std::size_t segments);
+
 }  // namespace mer::pipeline

@@ -194,6 +194,14 @@ TEST(Relocalization, WithoutItANewSegmentTracksTheKidnappedCameraAndMergesBack) 
   // One consistent frame for the whole run (measured 7.7 mm rmse, 0.13 % of the path).
   EXPECT_LT(static_cast<double>(s["accuracy"]["ate_rmse_m"]), 0.03);
   EXPECT_GT(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 85.0);
+  // trajectory_final.txt re-anchors every frame of trajectory.txt to the final map, the
+  // merged segment's too (their anchors scaled by the merge).
+  const cv::FileNode fin = s["final_trajectory"];
+  ASSERT_FALSE(fin.empty());
+  EXPECT_EQ(static_cast<int>(fin["frames"]), tracked);
+  EXPECT_EQ(static_cast<int>(fin["unresolved"]), 0);
+  EXPECT_EQ(lines(dir / "trajectory_final.txt"), tracked);
+  EXPECT_LT(static_cast<double>(s["accuracy_final"]["ate_rmse_m"]), 0.03);
 }
 
 // Threaded: the relocalizer runs on the depth thread while tracking goes on at camera rate.

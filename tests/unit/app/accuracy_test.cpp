@@ -45,7 +45,9 @@ TEST(FrameAnchors, ReadsAnchoredAndUnanchoredFrames) {
 // Each defect is an error naming the file and the line.
 TEST(FrameAnchors, BadLinesNameFileAndLine) {
   const std::vector<std::pair<std::string, std::string>> cases{
-      {"1.0 - 0.5 0 0 0 0 0\n", ":1: expected 9 fields"},
+      {"1.0 - 0.5 0 0 0 0 0\n", ":1: expected 10 fields"},
+      {"1.0 - x 0.5 0 0 0 0 0 1\n", ":1: bad segment"},
+      {"1.0 - -1 0.5 0 0 0 0 0 1\n", ":1: bad segment"},
       {"x - 0.5 0 0 0 0 0 1\n", ":1: bad timestamp"},
       {"1.0 - 0.5 0 0 0 0 0 1\n2.0 - 0 0 0 0 0 0 1\n", ":2: timestamp 2.0"},
       {"1.0 y 0.5 0 0 0 0 0 1\n", ":1: bad keyframe timestamp"},
@@ -65,6 +67,43 @@ TEST(FrameAnchors, BadLinesNameFileAndLine) {
   }
   auto frames = two_frames();
   EXPECT_FALSE(read_frame_anchors("/nonexistent/frame_anchors.txt", frames).is_ok());
+}
+
+// A run whose segment 1 merged into segment 0 at scale 2 and whose segment 2 never merged:
+// trajectory.txt holds the frames of 0 and 1. Segment 2's lines are skipped, segment 1's
+// anchor is scaled into segment 0's units, and its frame without anchor (moved into
+// trajectory.txt's frame by the merge) need not repeat its own-frame pose.
+TEST(FrameAnchors, FramesOfJoinedSegmentsAreReadInTheMainSegmentsUnits) {
+  std::vector<pipeline::AnchoredFrame> frames(3);
+  frames[0].t_ns = 1'000'000'000;
+  frames[1].t_ns = 2'000'000'000;
+  frames[2].t_ns = 4'000'000'000;
+  frames[2].T_w_c = make_se3(Eigen::Quaterniond::Identity(), Eigen::Vector3d(9.0, 0.0, 0.0));
+  const char* const text =
+      "1.0 0.5 0 0.1 0 0 0 0 0 1\n"
+      "2.0 1.5 1 0.1 0.2 0 0 0 0 1\n"
+      "3.0 2.5 2 0.1 0 0 0 0 0 1\n"
+      "4.0 - 1 0.3 0 0 0 0 0 1\n";
+  const std::vector<double> scales{1.0, 2.0, 0.0};
+  const Status s = read_frame_anchors(write("mer_anchors_segments.txt", text), frames, scales, 0);
+  ASSERT_TRUE(s.is_ok()) << s.message();
+  ASSERT_TRUE(frames[0].has_anchor);
+  EXPECT_NEAR(frames[0].T_kf_c.translation().x(), 0.1, 1e-12);
+  ASSERT_TRUE(frames[1].has_anchor);
+  EXPECT_EQ(frames[1].anchor_t_ns, 1'500'000'000);
+  EXPECT_NEAR(frames[1].T_kf_c.translation().x(), 0.2, 1e-12);
+  EXPECT_NEAR(frames[1].T_kf_c.translation().y(), 0.4, 1e-12);
+  EXPECT_FALSE(frames[2].has_anchor);
+  // The same file read as if every segment were trajectory.txt's: four lines, three frames.
+  std::vector<pipeline::AnchoredFrame> all(3);
+  all[0].t_ns = 1'000'000'000;
+  all[1].t_ns = 2'000'000'000;
+  all[2].t_ns = 4'000'000'000;
+  EXPECT_FALSE(read_frame_anchors(write("mer_anchors_segments.txt", text), all).is_ok());
+  // A frame without anchor of the main segment must repeat its trajectory.txt pose.
+  EXPECT_FALSE(read_frame_anchors(write("mer_anchors_segments.txt", text), frames,
+                                  std::vector<double>{1.0, 2.0, 0.0}, 1)
+                   .is_ok());
 }
 
 // Random byte edits of a good file: parsed or refused, never a crash or a hang (run under

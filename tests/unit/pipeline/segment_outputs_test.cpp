@@ -172,5 +172,30 @@ TEST_F(SegmentOutputs, DamagedFileIsNamedAndNothingIsLost) {
   EXPECT_TRUE(fs::exists(dir_ / "trajectory_segment_1.txt"));
 }
 
+// Scales into the main segment's units follow the merges in order: 2 joined 1 (scale 2),
+// then 1 joined 0 (scale 0.25), so 2's units are 0.5 of 0's; 3 never merged; 4 joined 3.
+TEST(SegmentScales, FollowTheMergesIntoTheMainSegment) {
+  const auto merge = [](std::uint16_t from, std::uint16_t into, double s) {
+    SegmentMergeRecord m;
+    m.from = from;
+    m.into = into;
+    m.sim_into_from.s = s;
+    return m;
+  };
+  const std::vector<SegmentMergeRecord> merges{merge(2, 1, 2.0), merge(1, 0, 0.25),
+                                               merge(4, 3, 3.0)};
+  const std::vector<double> to0 = segment_scales_into(merges, 0, 5);
+  ASSERT_EQ(to0.size(), 5U);
+  EXPECT_DOUBLE_EQ(to0[0], 1.0);
+  EXPECT_DOUBLE_EQ(to0[1], 0.25);
+  EXPECT_DOUBLE_EQ(to0[2], 0.5);
+  EXPECT_DOUBLE_EQ(to0[3], 0.0);
+  EXPECT_DOUBLE_EQ(to0[4], 0.0);
+  const std::vector<double> to3 = segment_scales_into(merges, 3, 5);
+  EXPECT_DOUBLE_EQ(to3[3], 1.0);
+  EXPECT_DOUBLE_EQ(to3[4], 3.0);
+  EXPECT_DOUBLE_EQ(to3[0], 0.0);
+}
+
 }  // namespace
 }  // namespace mer::pipeline
