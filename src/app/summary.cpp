@@ -230,7 +230,12 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"align_refused_residual\": " << m.align_refused_residual
     << ", \"align_refused_shift\": " << m.align_refused_shift
     << ", \"depth_valid\": " << m.depth_valid << ", \"depth_missing\": " << m.depth_missing
-    << ", \"depth_errors\": " << m.depth_errors << ", \"live_keyframes\": " << st.map.live_keyframes
+    << ", \"depth_errors\": " << m.depth_errors
+    << ", \"keypoint_fates\": {\"free\": " << m.fates.free << ", \"no_match\": " << m.fates.no_match
+    << ", \"low_parallax\": " << m.fates.low_parallax << ", \"few_views\": " << m.fates.few_views
+    << ", \"rejected\": " << m.fates.rejected << ", \"depth\": " << m.fates.depth
+    << ", \"new_points\": " << m.new_points << "}"
+    << ", \"live_keyframes\": " << st.map.live_keyframes
     << ", \"live_points\": " << st.map.live_points
     << ", \"keyframe_slots_used\": " << st.map.keyframe_slots_used
     << ", \"point_slots_used\": " << st.map.point_slots_used

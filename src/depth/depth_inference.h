@@ -67,6 +67,31 @@ struct DepthRequest {
 };
 
 /// Output buffers, sized by the caller for the request's keypoints.
+/// What became of a keyframe's free keypoints (not yet map-points) in depth inference, by
+/// the first check each failed (backends that do not match across views fill `free` and
+/// `depth` only). `Count`: int for one keyframe, a 64-bit count for a run's totals.
+template <class Count>
+struct BasicKeypointFates {
+  Count free = 0;          ///< keypoints that were not map-points yet
+  Count no_match = 0;      ///< no view matched it along its epipolar line
+  Count low_parallax = 0;  ///< matched, but the widest baseline saw it under too small an angle
+  Count few_views = 0;     ///< fewer agreeing views than depth.triangulation.min_views
+  Count rejected = 0;      ///< behind a camera, reprojected too far, or scales inconsistent
+  Count depth = 0;         ///< given a depth
+
+  /// Adds another count (one keyframe's to a run's totals).
+  template <class Other>
+  void add(const BasicKeypointFates<Other>& o) {
+    free += static_cast<Count>(o.free);
+    no_match += static_cast<Count>(o.no_match);
+    low_parallax += static_cast<Count>(o.low_parallax);
+    few_views += static_cast<Count>(o.few_views);
+    rejected += static_cast<Count>(o.rejected);
+    depth += static_cast<Count>(o.depth);
+  }
+};
+using KeypointFates = BasicKeypointFates<int>;
+
 struct DepthResult {
   std::span<float> depth;                     ///< camera z per keypoint (0 = unknown)
   std::span<float> confidence;                ///< [0, 1] per keypoint
@@ -80,6 +105,7 @@ struct DepthResult {
   std::span<std::uint32_t> view_keypoint;
   bool input_missing = false;  ///< the backend had no input for this keyframe (e.g. no depth
                                ///< map near its time): no depth, counted apart from failures
+  KeypointFates fates;         ///< what became of the free keypoints
 };
 
 /// No supporting view.

@@ -730,6 +730,15 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) 
     out.num_valid = 0;
   }
   rep.depth_valid = out.num_valid;
+  if (out.fates.free == 0) {
+    // A backend that does not match across views: free keypoints, and those with a depth.
+    for (std::size_t i = 0; i < n; ++i) {
+      if (ids[i] != map::kNoId) continue;
+      ++out.fates.free;
+      out.fates.depth += depth_[i] > 0.0F;
+    }
+  }
+  rep.fates = out.fates;
   // 2. Scale alignment with the 3D-2D matches: ratio of map depth to inferred depth.
   const SE3d T_c_w = job.T_w_c.inverse();
   ratios_.clear();
@@ -842,6 +851,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) 
   totals_.align_refused_residual += static_cast<std::uint64_t>(rep.align_refused_residual);
   totals_.align_refused_shift += static_cast<std::uint64_t>(rep.align_refused_shift);
   totals_.depth_valid += static_cast<std::uint64_t>(rep.depth_valid);
+  totals_.fates.add(rep.fates);
   totals_.total_ms += ms;
   totals_.max_ms = std::max(totals_.max_ms, ms);
   return rep;

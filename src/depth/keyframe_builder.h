@@ -51,6 +51,7 @@ struct KeyframeBuildReport {
   int scale_samples = 0;           ///< 3D-2D matches used for the scale ratio
   double scale_ratio = 1.0;        ///< map depth / inferred depth (median)
   bool scale_applied = false;      ///< the ratio was applied to the depth
+  KeypointFates fates;             ///< what became of the keypoints that were not map-points
 };
 
 /// Totals over the run (summary.json `mapping`).
@@ -72,6 +73,8 @@ struct KeyframeBuildTotals {
   std::uint64_t merged_segment_jobs = 0;  ///< tracked in a segment merged since: moved first
   std::uint64_t segment_starts = 0;       ///< segments' first keyframes and points inserted
   std::uint64_t start_points = 0;         ///< points those starts brought
+  BasicKeypointFates<std::uint64_t> fates;  ///< what became of the free keypoints (new_points:
+                                            ///< those that became map-points)
   double total_ms = 0.0;
   double max_ms = 0.0;
 };

@@ -134,15 +134,21 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
   const double bound = opts_.max_reprojection_sigmas * opts_.max_reprojection_sigmas;
   std::array<SE3d, kMaxViews + 1> poses;
   std::array<Eigen::Vector3d, kMaxViews + 1> rays;
+  KeypointFates& fate = out.fates;
+  fate = KeypointFates{};
   for (std::size_t i = 0; i < n; ++i) {
+    if (!is_free(req.point_ids, i)) continue;
+    ++fate.free;
     const features::Keypoint& kp = req.keypoints[i];
     const Eigen::Vector3d x_k = K.unproject({kp.x, kp.y});
     std::size_t best_v = nv;
     double best_cos = 1.0;
+    bool matched = false;
     Eigen::Vector3d X_best = Eigen::Vector3d::Zero();
     for (std::size_t vi = 0; vi < nv; ++vi) {
       const std::uint32_t j = match_[i * nv + vi];
       if (j == kNoSupport) continue;
+      matched = true;
       const features::Keypoint& kq = req.views[vi].keypoints[j];
       Eigen::Vector3d X_w;
       if (!geometry::triangulate_two_view(T_ck_w, T_cj_w[vi], x_k, K.unproject({kq.x, kq.y}),
@@ -158,7 +164,14 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
         X_best = X_w;
       }
     }
-    if (best_v == nv || best_cos > min_cos_parallax) continue;
+    if (!matched) {
+      ++fate.no_match;
+      continue;
+    }
+    if (best_v == nv || best_cos > min_cos_parallax) {
+      ++fate.low_parallax;
+      continue;
+    }
     // Views consistent with X_best.
     std::size_t nviews = 0;
     std::array<std::uint32_t, kMaxViews + 1> view_of{};  // view index per entry (0: keyframe)
@@ -177,7 +190,10 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       view_of[nviews] = static_cast<std::uint32_t>(vi);
       rays[nviews++] = K.unproject({kq.x, kq.y});
     }
-    if (nviews < 2 || static_cast<int>(nviews) < opts_.min_views) continue;
+    if (nviews < 2 || static_cast<int>(nviews) < opts_.min_views) {
+      ++fate.few_views;
+      continue;
+    }
     Eigen::Vector3d X_w = X_best;
     if (nviews > 2 && !geometry::triangulate_multi_view(
                           std::span<const SE3d>(poses.data(), nviews),
@@ -185,9 +201,11 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       X_w = X_best;
     }
     const Eigen::Vector3d p_k = T_ck_w * X_w;
-    if (p_k.z() <= 0.0) continue;
-    if ((K.project(p_k) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > bound * sigma2(kp.level))
+    if (p_k.z() <= 0.0 ||
+        (K.project(p_k) - Eigen::Vector2d(kp.x, kp.y)).squaredNorm() > bound * sigma2(kp.level)) {
+      ++fate.rejected;
       continue;
+    }
     // Scale consistency: the distances to the two cameras must agree with the pyramid
     // levels the keypoints were found at (a wrong match on repetitive texture often pairs
     // keypoints whose scales contradict the triangulated distances).
@@ -198,6 +216,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       const double level_ratio = static_cast<double>(kq.scale) / static_cast<double>(kp.scale);
       if (dist_ratio * opts_.max_scale_inconsistency < level_ratio ||
           dist_ratio > level_ratio * opts_.max_scale_inconsistency) {
+        ++fate.rejected;
         continue;
       }
     }
@@ -225,6 +244,7 @@ Status TriangulationDepth::infer(const DepthRequest& req, DepthResult& out) {
       }
     }
     ++out.num_valid;
+    ++fate.depth;
   }
   return Status::ok();
 }

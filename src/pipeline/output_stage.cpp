@@ -15,9 +15,6 @@ constexpr std::size_t kLineBuffer = 512;      // longest line we format
 constexpr double kNsToMs = 1e-6;
 }  // namespace
 
-namespace {
-// Seconds with 9 decimals from integer nanoseconds, exact at any epoch (a double holds only
-// ~0.2 us at 1.4e9 s). Writes into `buf`; returns the length.
 int format_seconds(char* buf, std::size_t size, std::int64_t t_ns) {
   const bool negative = t_ns < 0;
   const auto mag =
@@ -26,6 +23,7 @@ int format_seconds(char* buf, std::size_t size, std::int64_t t_ns) {
                        mag % 1'000'000'000ULL);
 }
 
+namespace {
 // `<prefix> tx ty tz qx qy qz qw\n`, fixed formatting: deterministic; positions and
 // quaternions to 1e-9.
 int format_pose_line(char* buf, std::size_t size, const char* prefix, const SE3d& T) {

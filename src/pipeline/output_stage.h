@@ -21,6 +21,9 @@
 ///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state,segment` for every
 ///                   processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
+/// (keyframes.csv, one line per keyframe created, is written by the pipeline from the
+/// keyframe thread: `seq,t_s,segment,keypoints,tracked,free,no_match,low_parallax,few_views,
+/// rejected,depth,new_points,neighbours`, depth/depth_inference.h KeypointFates.)
 
 #include <cstdint>
 #include <cstdio>
@@ -77,6 +80,9 @@ class OutputStage {
   bool write_error_ = false;
 };
 
+/// Seconds with 9 decimals from integer nanoseconds, exact at any epoch (a double holds only
+/// ~0.2 us at 1.4e9 s). Writes into `buf` (no allocation); returns the length.
+int format_seconds(char* buf, std::size_t size, std::int64_t t_ns);
 /// Formats a pose line in TUM format into `buf` (no allocation); returns its length.
 int format_tum_line(char* buf, std::size_t size, std::int64_t t_ns, const SE3d& T_w_c);
 /// Formats a frame_anchors.txt line of a frame tracked in `segment` (`anchor_t_ns` null: no

@@ -102,7 +102,9 @@ Pipeline::Pipeline(const PipelineConfig& config, hal::CameraSource& camera,
                    const std::atomic<bool>& stop, depth::DepthMapSource* depth_maps)
     : config_(config), camera_(camera), stop_(stop), depth_maps_(depth_maps) {}
 
-Pipeline::~Pipeline() = default;
+Pipeline::~Pipeline() {
+  if (keyframes_csv_ != nullptr) (void)std::fclose(keyframes_csv_);
+}
 
 Status Pipeline::init(const std::string& output_dir) {
   const hal::CameraIntrinsics& K = camera_.intrinsics();
@@ -198,6 +200,7 @@ Status Pipeline::init(const std::string& output_dir) {
       "local_ba", ms_to_ns(config_.backend.max_time_ms), trace);
   output_dir_ = output_dir;
   Status s = output_.open(output_dir, config_.output);
+  if (s.is_ok()) s = open_keyframes_csv();
   if (!s.is_ok()) return s;
   if (b.lock_memory) {
     std::string err;
@@ -249,6 +252,7 @@ Status Pipeline::run() {
   camera_.stop();
   stats_.source = camera_.counters();
   Status c = output_.close();
+  if (const Status k = close_keyframes_csv(); c.is_ok()) c = k;
   if (c.is_ok()) c = join_segments();
   if (config_.pipeline.final_ba && stats_.frames_processed > 0) run_final_ba();
   const Status k = write_final_keyframes();
@@ -374,7 +378,43 @@ depth::KeyframeBuildReport Pipeline::build_keyframe(const map::KeyframeJob& job)
   const depth::KeyframeBuildReport rep = builder_->spin_once(job);
   // (A segment's start is an insertion only: not a keyframe's creation time.)
   if (!rep.segment_start) lat_keyframe_->record(job.seq, t_kf, platform::monotonic_now_ns() - t_kf);
+  if (rep.ok && !rep.segment_start) write_keyframe_row(job, rep);
   return rep;
+}
+
+Status Pipeline::open_keyframes_csv() {
+  if (output_dir_.empty()) return Status::ok();
+  keyframes_csv_path_ = (std::filesystem::path(output_dir_) / "keyframes.csv").string();
+  keyframes_csv_ = std::fopen(keyframes_csv_path_.c_str(), "w");
+  if (keyframes_csv_ == nullptr) {
+    return runtime_error("cannot write '" + keyframes_csv_path_ + "': " + std::strerror(errno));
+  }
+  std::fputs(
+      "seq,t_s,segment,keypoints,tracked,free,no_match,low_parallax,few_views,rejected,depth,"
+      "new_points,neighbours\n",
+      keyframes_csv_);
+  return Status::ok();
+}
+
+void Pipeline::write_keyframe_row(const map::KeyframeJob& job,
+                                  const depth::KeyframeBuildReport& rep) {
+  if (keyframes_csv_ == nullptr) return;
+  const depth::KeypointFates& f = rep.fates;
+  char t_s[32];
+  format_seconds(t_s, sizeof t_s, job.t_ns);
+  std::fprintf(keyframes_csv_, "%llu,%s,%u,%d,%d,%d,%d,%d,%d,%d,%d,%d,%d\n",
+               static_cast<unsigned long long>(job.seq), t_s, unsigned{job.segment},
+               job.num_keypoints, rep.tracked_observations, f.free, f.no_match, f.low_parallax,
+               f.few_views, f.rejected, f.depth, rep.new_points, rep.neighbours);
+}
+
+Status Pipeline::close_keyframes_csv() {
+  if (keyframes_csv_ == nullptr) return Status::ok();
+  const bool bad = std::ferror(keyframes_csv_) != 0;
+  const bool closed = std::fclose(keyframes_csv_) == 0;
+  keyframes_csv_ = nullptr;
+  if (bad || !closed) return runtime_error("error writing '" + keyframes_csv_path_ + "'");
+  return Status::ok();
 }
 
 void Pipeline::optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole& K,

@@ -259,6 +259,12 @@ class Pipeline {
   /// final map (after local BA and the final BA), in time order.
   Status write_final_keyframes() const;
   std::vector<SegmentMergeRecord> merge_records() const;
+  /// keyframes.csv: one line per keyframe created (keyframe thread only; closed by run()).
+  Status open_keyframes_csv();
+  void write_keyframe_row(const map::KeyframeJob& job, const depth::KeyframeBuildReport& rep);
+  Status close_keyframes_csv();
+  std::FILE* keyframes_csv_ = nullptr;
+  std::string keyframes_csv_path_;
   std::string output_dir_;
   platform::BoardThreads resolve_threads() const;
   bool reached_max_frames() const;

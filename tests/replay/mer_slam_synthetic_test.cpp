@@ -49,7 +49,7 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
     ASSERT_EQ(r.exit_code, 0) << r.output;
   }
   for (const char* f : {"trajectory.txt", "keyframes.txt", "frames.csv", "frame_anchors.txt",
-                        "keyframes_final.txt", "trajectory_final.txt"}) {
+                        "keyframes_final.txt", "trajectory_final.txt", "keyframes.csv"}) {
     const std::string fa = read_text((a / f).string());
     ASSERT_FALSE(fa.empty()) << f;
     EXPECT_EQ(fa, read_text((b / f).string())) << f << " differs between lockstep runs";
@@ -62,6 +62,12 @@ TEST(MerSlamSynthetic, LockstepRunsAreByteIdentical) {
   EXPECT_EQ(static_cast<int>(s["frames_processed"]), 120);
   EXPECT_EQ(static_cast<int>(s["frames_dropped"]), 0);
   EXPECT_EQ(static_cast<std::string>(s["run_mode"]), "lockstep");
+  // keyframes.csv: a header and one line per keyframe created (not the segment's start).
+  EXPECT_EQ(count_lines((a / "keyframes.csv").string()),
+            1 + static_cast<int>(s["map"]["keyframe_jobs"]));
+  const cv::FileNode fates = s["map"]["keypoint_fates"];
+  EXPECT_GT(static_cast<int>(fates["free"]), 0);
+  EXPECT_GE(static_cast<int>(fates["depth"]), static_cast<int>(fates["new_points"]));
 }
 
 // --gt-check runs after every output is written: the files of a run without it are

@@ -141,7 +141,7 @@ TEST(DepthMaps, KeypointDepthFromRealFiles) {
   for (const auto& [t_ns, offset, tol] :
        {std::tuple{105'000'000LL, 0.1, 1e-5}, {190'000'000LL, 0.2, 1e-3}}) {
     req.t_ns = t_ns;
-    depth::DepthResult out{depth, conf, sv, sk, 0, {}, false};
+    depth::DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
     ASSERT_TRUE(backend.infer(req, out).is_ok()) << t_ns;
     ASSERT_EQ(out.num_valid, static_cast<int>(n)) << t_ns;
     for (std::size_t i = 0; i < n; ++i) {
@@ -150,7 +150,7 @@ TEST(DepthMaps, KeypointDepthFromRealFiles) {
     }
   }
   req.t_ns = 500'000'000;  // 0.3 s from the last map
-  depth::DepthResult out{depth, conf, sv, sk, 0, {}, false};
+  depth::DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
   const Status s = backend.infer(req, out);
   EXPECT_FALSE(s.is_ok());
   EXPECT_TRUE(out.input_missing);

@@ -80,7 +80,7 @@ class ExternalDepthTest : public ::testing::Test {
     req.gray = &gray_;
     return req;
   }
-  DepthResult result() { return {depth_, conf_, sv_, sk_, 0, {}, false}; }
+  DepthResult result() { return {depth_, conf_, sv_, sk_, 0, {}, false, {}}; }
 
   cv::Mat gray_;
   std::vector<features::Keypoint> kps_;

@@ -73,7 +73,7 @@ TEST_F(PlaneSweepDepthTest, KeypointDepthMatchesRenderedDepth) {
   req.depth_hint_max = z[z.size() * 19 / 20];
   std::vector<float> depth(n), conf(n);
   std::vector<std::uint32_t> sv(n), sk(n);
-  DepthResult out{depth, conf, sv, sk, 0, {}, false};
+  DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
   PlaneSweepDepth backend(PlaneSweepDepthOptions{});
   ASSERT_TRUE(backend.infer(req, out).is_ok());
   std::vector<double> err;

@@ -111,7 +111,7 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
   std::vector<float> conf(n);
   std::vector<std::uint32_t> sv(n);
   std::vector<std::uint32_t> sk(n);
-  DepthResult out{depth, conf, sv, sk, 0, {}, false};
+  DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
   TriangulationDepth tri(TriangulationOptions{});
   ASSERT_TRUE(tri.infer(req, out).is_ok());
   // With 1 px keypoint noise at f = 457 px, the relative depth error of a point seen under
@@ -135,6 +135,48 @@ TEST_F(TriangulationDepthTest, DepthAtKeypointsMatchesRenderedDepth) {
               abs_median, p90);
 }
 
+// Every free keypoint is counted once, by the first check it failed; a parallax bound no
+// view can meet moves every matched keypoint to low_parallax, and a keypoint that is already
+// a map-point is not counted.
+TEST_F(TriangulationDepthTest, CountsWhatBecameOfEveryFreeKeypoint) {
+  View key = render(2.0);
+  std::vector<View> others = {render(1.4), render(1.6), render(1.8)};
+  for (std::size_t i = 0; i < key.ids.size(); i += 10) key.ids[i] = 7;  // map-points already
+  std::vector<DepthView> views;
+  DepthRequest req = request(key, others, views);
+  req.gray = &key.gray;
+  req.views = views;
+  const std::size_t n = key.kps.size();
+  const int free = static_cast<int>(n - (n + 9) / 10);
+  std::vector<float> depth(n);
+  std::vector<float> conf(n);
+  std::vector<std::uint32_t> sv(n);
+  std::vector<std::uint32_t> sk(n);
+  for (const double min_parallax_deg : {1.0, 89.0}) {
+    DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
+    TriangulationOptions o;
+    o.min_parallax_deg = min_parallax_deg;
+    TriangulationDepth tri(o);
+    ASSERT_TRUE(tri.infer(req, out).is_ok());
+    const KeypointFates& f = out.fates;
+    EXPECT_EQ(f.free, free);
+    EXPECT_EQ(f.no_match + f.low_parallax + f.few_views + f.rejected + f.depth, f.free);
+    EXPECT_EQ(f.depth, out.num_valid);
+    if (min_parallax_deg > 45.0) {
+      EXPECT_EQ(f.depth, 0);
+      EXPECT_EQ(f.few_views + f.rejected, 0);
+      EXPECT_GT(f.low_parallax, free / 4) << "matched keypoints";
+    } else {
+      EXPECT_GT(f.depth, 100);
+      EXPECT_GT(f.no_match, 0);
+    }
+    std::printf(
+        "parallax >= %.0f deg: free %d, no match %d, low parallax %d, few views %d, "
+        "rejected %d, depth %d\n",
+        min_parallax_deg, f.free, f.no_match, f.low_parallax, f.few_views, f.rejected, f.depth);
+  }
+}
+
 // Every view that agreed on a depth is reported with its keypoint, and each such keypoint
 // is the true image of the keyframe's keypoint (checked with the rendered depth).
 TEST_F(TriangulationDepthTest, ReportsEveryAgreeingViewKeypoint) {
@@ -153,9 +195,9 @@ TEST_F(TriangulationDepthTest, ReportsEveryAgreeingViewKeypoint) {
   TriangulationOptions opts;
   opts.min_views = 3;
   TriangulationDepth tri(opts);
-  DepthResult small{depth, conf, sv, sk, 0, std::span<std::uint32_t>(vk.data(), n), false};
+  DepthResult small{depth, conf, sv, sk, 0, std::span<std::uint32_t>(vk.data(), n), false, {}};
   EXPECT_FALSE(tri.infer(req, small).is_ok()) << "a buffer smaller than keypoints x views";
-  DepthResult out{depth, conf, sv, sk, 0, vk, false};
+  DepthResult out{depth, conf, sv, sk, 0, vk, false, {}};
   ASSERT_TRUE(tri.infer(req, out).is_ok());
   ASSERT_GT(out.num_valid, 100);
   int listed = 0;
@@ -207,7 +249,7 @@ TEST(RgbdDepth, PassesSensorDepthWithinRange) {
   std::vector<float> conf(4);
   std::vector<std::uint32_t> sv(4);
   std::vector<std::uint32_t> sk(4);
-  DepthResult out{depth, conf, sv, sk, 0, {}, false};
+  DepthResult out{depth, conf, sv, sk, 0, {}, false, {}};
   RgbdDepth rgbd(RgbdDepthOptions{});
   ASSERT_TRUE(rgbd.infer(req, out).is_ok());
   EXPECT_EQ(out.num_valid, 2);
