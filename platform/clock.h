@@ -10,6 +10,12 @@ namespace mer::platform {
 /// vDSO call, no syscall, no allocation: safe on real-time threads.
 std::int64_t monotonic_now_ns() noexcept;
 
+/// Milliseconds of the monotonic clock since `t0_ns` (a monotonic_now_ns() reading).
+inline double elapsed_ms(std::int64_t t0_ns) noexcept {
+  constexpr double kNsToMs = 1e-6;
+  return static_cast<double>(monotonic_now_ns() - t0_ns) * kNsToMs;
+}
+
 /// `t_ns + dt_ns` clamped to the int64 range (deadlines from caller-supplied timeouts).
 constexpr std::int64_t saturating_add_ns(std::int64_t t_ns, std::int64_t dt_ns) noexcept {
   constexpr std::int64_t kMax = std::numeric_limits<std::int64_t>::max();

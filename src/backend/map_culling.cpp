@@ -1,9 +1,9 @@
 #include "backend/map_culling.h"
 
 #include <algorithm>
-#include <chrono>
 #include <mutex>
 
+#include "platform/clock.h"
 #include "platform/log_ring.h"
 
 namespace mer::backend {
@@ -204,7 +204,7 @@ CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   CullingReport rep;
   if (!opts_.enabled) return rep;
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
-  const auto t0 = std::chrono::steady_clock::now();  // after the wait: `ms` is the work
+  const auto t0 = platform::monotonic_now_ns();  // after the wait: `ms` is the work
   rep.culled_points = cull_points();
 
   const std::size_t nc = newest == map::kNoId ? 0 : map_.covisible_keyframes(newest, covis_);
@@ -216,7 +216,7 @@ CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   }
   cull_at_capacity(rep);
   rep.ran = true;
-  rep.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  rep.ms = platform::elapsed_ms(t0);
 
   const std::uint64_t now = map_.keyframes_added();
   ++totals_.runs;

@@ -1,7 +1,6 @@
 #include "depth/keyframe_builder.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <mutex>
@@ -14,6 +13,7 @@
 #include "depth/plane_sweep_depth.h"
 #include "depth/rgbd_depth.h"
 #include "depth/triangulation_depth.h"
+#include "platform/clock.h"
 #include "platform/log_ring.h"
 
 namespace mer::depth {
@@ -633,7 +633,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) 
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
   if (tracked.kind == map::KeyframeJobKind::kSegmentStart) return insert_segment_start(tracked);
   const map::KeyframeJob& job = resolve_merged_segment(tracked);
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = platform::monotonic_now_ns();
   KeyframeBuildReport rep;
   const auto n = static_cast<std::size_t>(job.num_keypoints);
   std::copy_n(job.keypoints.begin(), n, kps_.begin());
@@ -838,8 +838,7 @@ KeyframeBuildReport KeyframeBuilder::spin_once(const map::KeyframeJob& tracked) 
   }
   rep.ok = true;
 
-  const double ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  const double ms = platform::elapsed_ms(t0);
   ++totals_.keyframes;
   totals_.new_points += static_cast<std::uint64_t>(rep.new_points);
   totals_.observations += static_cast<std::uint64_t>(rep.tracked_observations);

@@ -1,7 +1,6 @@
 #include "loop/loop_closer.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 #include <mutex>
@@ -14,6 +13,7 @@
 #include "core/median.h"
 #include "geometry/random.h"
 #include "loop/descriptor_match.h"
+#include "platform/clock.h"
 #include "platform/log_ring.h"
 
 namespace mer::loop {
@@ -57,10 +57,6 @@ Sim3d fit_sim3(const std::vector<Eigen::Vector3d>& x_new, const std::vector<Eige
 bool plausible_sim3(const Sim3d& S, double max_scale) {
   return std::isfinite(S.s) && S.s > 1.0 / max_scale && S.s < max_scale && S.R.allFinite() &&
          S.t.allFinite();
-}
-
-double elapsed_ms(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
 /// Relative similarity error of a pose-graph edge (i, j): parameters are S_w_i and S_w_j as
@@ -187,7 +183,7 @@ float LoopCloser::sigma2(const features::Keypoint& k) const {
 LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K) {
   LoopReport rep;
   if (!opts_.enabled || kf == map::kNoId) return rep;
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = platform::monotonic_now_ns();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
   if (!map_.keyframe_is_live(kf) || kf >= db_.capacity()) return rep;
   const std::uint64_t serial = map_.keyframe_serial(kf);
@@ -390,7 +386,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.closed = true;
     }
   }
-  rep.ms = elapsed_ms(t0);
+  rep.ms = platform::elapsed_ms(t0);
   lock.unlock();
   if (rep.closed) {
     any_loop_ = true;
@@ -402,9 +398,9 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
         static_cast<unsigned long long>(rep.loop_seq), rep.inliers, rep.matches, rep.scale,
         rep.shift, rep.keyframes, rep.merged_points, rep.fused_observations, rep.ms);
     if (ba_ != nullptr && opts_.full_ba_iterations > 0) {
-      const auto t1 = std::chrono::steady_clock::now();
+      const auto t1 = platform::monotonic_now_ns();
       (void)ba_->optimize_full(K, opts_.full_ba_iterations);
-      rep.full_ba_ms = elapsed_ms(t1);
+      rep.full_ba_ms = platform::elapsed_ms(t1);
     }
     ++totals_.loops_closed;
     if (rep.merged_from != map::kNoSegment) {

@@ -1,13 +1,13 @@
 #include "loop/relocalizer.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <limits>
 
 #include <Eigen/Geometry>
 
 #include "loop/descriptor_match.h"
+#include "platform/clock.h"
 
 namespace mer::loop {
 
@@ -20,10 +20,6 @@ constexpr int kGridCols = 48;
 constexpr int kGridRows = 36;
 /// Covisible keyframes read per candidate.
 constexpr std::size_t kMaxCovisible = 64;
-
-double elapsed_ms(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 
 }  // namespace
 
@@ -57,12 +53,12 @@ Relocalizer::Relocalizer(const RelocalizerOptions& opts, map::Map& map, Keyframe
 Relocalizer::~Relocalizer() = default;
 
 RelocResult Relocalizer::spin_once(const RelocQuery& q) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = platform::monotonic_now_ns();
   RelocResult r;
   if (reader_ >= 0) map_.reader_quiescent(reader_);
   const std::size_t n_kp = std::min({q.keypoints.size(), q.descriptors.size(), kp_best_.size()});
   if (n_kp == 0 || !(q.K.fx > 0.0) || !(q.K.fy > 0.0)) {
-    r.ms = elapsed_ms(t0);
+    r.ms = platform::elapsed_ms(t0);
     return r;
   }
   const RelocQuery frame{q.seq, q.t_ns, q.keypoints.first(n_kp), q.descriptors.first(n_kp), q.K};
@@ -78,7 +74,7 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
   build_grid(frame, n_kp);
 
   for (std::size_t h = 0; h < nh; ++h) {
-    if (!deterministic_ && h > 0 && elapsed_ms(t0) > opts_.max_time_ms) {
+    if (!deterministic_ && h > 0 && platform::elapsed_ms(t0) > opts_.max_time_ms) {
       r.timed_out = true;
       break;
     }
@@ -132,7 +128,7 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
     r.generation = hit.generation;
     break;
   }
-  r.ms = elapsed_ms(t0);
+  r.ms = platform::elapsed_ms(t0);
   return r;
 }
 
