@@ -8,8 +8,6 @@
 
 #include "core/median.h"
 #include "geometry/depth_sampling.h"
-#include "geometry/self_calibration.h"
-#include "geometry/two_view.h"
 #include "platform/clock.h"
 #include "platform/log_ring.h"
 
@@ -19,8 +17,6 @@ namespace {
 constexpr std::uint64_t kFnvOffset = 1469598103934665603ULL;
 constexpr std::uint64_t kFnvPrime = 1099511628211ULL;
 constexpr double kChi2TwoDof95 = 5.991;  // inlier gate of a 2D reprojection error, sigma^2
-constexpr double kRgbdMinDepthM = 0.1;   // RGB-D initialization: valid sensor depth range, m
-constexpr double kRgbdMaxDepthM = 10.0;
 constexpr int kNoMatch = -1;
 constexpr int kMaxRecentKeyframes = 64;    // distinct keyframes Q_T may draw from
 constexpr double kReferenceWidth = 640.0;  // extractor.num_features is meant for this size
@@ -66,13 +62,10 @@ Tracker::Tracker(const TrackingOptions& opts, map::Map& map, const geometry::Pin
       K_(K),
       width_(width),
       height_(height),
-      rgbd_(mode == SensorMode::kRgbd),
-      policy_(opts.keyframe.for_mode(mode), width, height) {
+      focal_(opts.focal, K.fx, focal_auto),
+      policy_(opts.keyframe.for_mode(mode), width, height),
+      initializer_(opts, mode) {
   spatial_max_age_ns_ = static_cast<std::int64_t>(opts.spatial_max_age_s * 1e9);
-  focal_.estimated = focal_auto;
-  focal_.initial = K.fx;
-  focal_.value = K.fx;
-  focal_.fixed = !focal_auto;
 }
 
 Tracker::~Tracker() {
@@ -109,11 +102,7 @@ Status Tracker::init() {
   const auto nk = static_cast<std::size_t>(max_kp);
   const auto nq = static_cast<std::size_t>(opts_.max_query_points);
   pnp_ = std::make_unique<geometry::PnpRansac>(opts_.pnp, nq);
-  grid_cols_ = (width_ + opts_.match.grid_cell_px - 1) / opts_.match.grid_cell_px;
-  grid_rows_ = (height_ + opts_.match.grid_cell_px - 1) / opts_.match.grid_cell_px;
-  grid_start_.assign(static_cast<std::size_t>(grid_cols_ * grid_rows_ + 1), 0);
-  grid_fill_.assign(static_cast<std::size_t>(grid_cols_ * grid_rows_), 0);
-  grid_items_.assign(nk, 0);
+  grid_.reserve(width_, height_, opts_.match.grid_cell_px, max_kp);
   stamp_.assign(static_cast<std::size_t>(map_.options().max_points), 0);
   query_buf_.assign(nq, 0);
   cand_id_.assign(nq, 0);
@@ -136,19 +125,11 @@ Status Tracker::init() {
   inlier_y_.assign(nk, 0.0F);
   kp_point_.assign(nk, map::kNoId);
   kp_point_gen_.assign(nk, map::kNoGeneration);
-  start_.reserve(max_kp);
   recent_.assign(static_cast<std::size_t>(opts_.temporal_frames), KeyframeHistogram{});
   qt_keyframes_.reserve(kMaxRecentKeyframes);
   depth_scratch_.reserve(std::max(nk, static_cast<std::size_t>(opts_.focal.max_frames) + 1024));
-  ref_kps_.reserve(nk);
-  ref_descs_.reserve(nk);
-  ref_prev_.reserve(nk);
-  ref_match_.reserve(nk);
-  init_uv0_.reserve(nk);
-  init_uv1_.reserve(nk);
-  init_ref_idx_.reserve(nk);
-  init_cur_idx_.reserve(nk);
-  focal_estimates_.reserve(static_cast<std::size_t>(opts_.focal.max_frames) + 1024);
+  focal_.reserve();
+  initializer_.reserve(max_kp);
   return Status::ok();
 }
 
@@ -164,28 +145,6 @@ std::vector<float> Tracker::level_sigma2() const {
 }
 
 // ---- Per-frame building blocks --------------------------------------------------------
-
-void Tracker::build_grid() {
-  const int cells = grid_cols_ * grid_rows_;
-  std::fill(grid_start_.begin(), grid_start_.end(), 0);
-  const int cell_px = opts_.match.grid_cell_px;
-  const auto n = std::min(kps_.size(), grid_items_.size());
-  auto cell_of = [&](const features::Keypoint& k) {
-    const int cx = std::clamp(static_cast<int>(k.x) / cell_px, 0, grid_cols_ - 1);
-    const int cy = std::clamp(static_cast<int>(k.y) / cell_px, 0, grid_rows_ - 1);
-    return cy * grid_cols_ + cx;
-  };
-  for (std::size_t i = 0; i < n; ++i) ++grid_start_[static_cast<std::size_t>(cell_of(kps_[i]) + 1)];
-  for (int c = 0; c < cells; ++c) {
-    grid_start_[static_cast<std::size_t>(c + 1)] += grid_start_[static_cast<std::size_t>(c)];
-  }
-  std::copy(grid_start_.begin(), grid_start_.begin() + cells, grid_fill_.begin());
-  for (std::size_t i = 0; i < n; ++i) {
-    const int c = cell_of(kps_[i]);
-    grid_items_[static_cast<std::size_t>(grid_fill_[static_cast<std::size_t>(c)]++)] =
-        static_cast<std::int32_t>(i);
-  }
-}
 
 void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   if (++frame_stamp_ == 0) {  // wrapped: forget every stamp
@@ -267,38 +226,6 @@ void Tracker::gather_queries(const SE3d& T_c_w, TrackingResult& r) {
   r.query_total = num_cand_;
 }
 
-Tracker::RadiusMatch Tracker::search_radius(const Eigen::Vector2d& uv, double r, int min_level,
-                                            int max_level, const features::Descriptor& desc) const {
-  const int cell_px = opts_.match.grid_cell_px;
-  const int x0 = std::max(0, static_cast<int>((uv.x() - r) / cell_px));
-  const int x1 = std::min(grid_cols_ - 1, static_cast<int>((uv.x() + r) / cell_px));
-  const int y0 = std::max(0, static_cast<int>((uv.y() - r) / cell_px));
-  const int y1 = std::min(grid_rows_ - 1, static_cast<int>((uv.y() + r) / cell_px));
-  RadiusMatch m;
-  for (int gy = y0; gy <= y1; ++gy) {
-    for (int gx = x0; gx <= x1; ++gx) {
-      const auto cell = static_cast<std::size_t>(gy * grid_cols_ + gx);
-      for (int it = grid_start_[cell]; it < grid_start_[cell + 1]; ++it) {
-        const int k = grid_items_[static_cast<std::size_t>(it)];
-        const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
-        if (kp.level < min_level || kp.level > max_level) continue;
-        const double dx = kp.x - uv.x();
-        const double dy = kp.y - uv.y();
-        if (dx * dx + dy * dy > r * r) continue;
-        const int d = features::hamming(desc, descs_[static_cast<std::size_t>(k)]);
-        if (d < m.best) {
-          m.second = m.best;
-          m.best = d;
-          m.index = k;
-        } else if (d < m.second) {
-          m.second = d;
-        }
-      }
-    }
-  }
-  return m;
-}
-
 int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) {
   std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
   const Eigen::Vector3d centre = T_c_w.inverse().translation();
@@ -334,7 +261,7 @@ int Tracker::project_and_match(const SE3d& T_c_w, double radius_px, bool tight) 
     const double r = radius_px * (pred_level >= 0 ? extractor_->level_scale(pred_level) : 1.0F);
     const int lo = pred_level >= 0 ? pred_level - window : 0;
     const int hi = pred_level >= 0 ? pred_level + window : levels;
-    const auto [best, second, best_k] = search_radius(uv, r, lo, hi, cand_desc_[ci]);
+    const auto [best, second, best_k] = grid_.search(uv, r, lo, hi, cand_desc_[ci]);
     if (best_k == kNoMatch || best > opts_.match.max_hamming) continue;
     if (second != std::numeric_limits<int>::max() && best > opts_.match.ratio * second) continue;
     const auto bk = static_cast<std::size_t>(best_k);
@@ -390,7 +317,7 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
   in.uv = std::span<const Eigen::Vector2d>(corr_uv_.data(), um);
   in.sigma = std::span<const float>(corr_sigma_.data(), um);
   in.K = K_;
-  const bool est_focal = focal_.estimated && !focal_.fixed;
+  const bool est_focal = focal_.refining();
   const geometry::PnpResult pr =
       est_focal
           ? pnp_->solve_with_focal(in, std::span<std::uint8_t>(corr_mask_.data(), um), &T_c_w_pred)
@@ -471,30 +398,7 @@ bool Tracker::estimate_pose(const SE3d& T_c_w_pred, bool wide, TrackingResult& r
 }
 
 void Tracker::update_focal(double f, std::uint64_t seq) {
-  if (!(f > 0.0) || !std::isfinite(f)) return;
-  if (focal_estimates_.size() < focal_estimates_.capacity()) focal_estimates_.push_back(f);
-  depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
-  const double med = upper_median(depth_scratch_);
-  focal_.estimates = static_cast<int>(focal_estimates_.size());
-  focal_.value = med;
-  focal_stable_count_ =
-      std::abs(f - med) <= opts_.focal.stable_tolerance * med ? focal_stable_count_ + 1 : 0;
-  K_ = K_.with_focal(med);
-  if (focal_stable_count_ >= opts_.focal.stable_frames ||
-      frames_since_init_ >= static_cast<std::uint64_t>(opts_.focal.max_frames)) {
-    focal_.fixed = true;
-    focal_.fixed_at_seq = static_cast<std::int64_t>(seq);
-    MER_LOG_INFO("focal length fixed at %.2f px (frame %llu, %d estimates)", med,
-                 static_cast<unsigned long long>(seq), focal_.estimates);
-  }
-}
-
-void Tracker::fix_focal_at_init(std::uint64_t seq) {
-  if (!focal_.estimated || focal_.fixed || opts_.focal.refine_after_init) return;
-  focal_.fixed = true;
-  focal_.fixed_at_seq = static_cast<std::int64_t>(seq);
-  MER_LOG_INFO("focal length fixed at %.2f px at initialization (%d two-view estimates)",
-               focal_.value, focal_.estimates);
+  if (focal_.add_tracked(f, seq, frames_since_init_)) K_ = K_.with_focal(focal_.value());
 }
 
 // ---- State machine and relocalization ------------------------------------------------
@@ -555,8 +459,7 @@ void Tracker::start_new_segment(std::uint64_t seq) {
   segment_ = segments_started_++;
   ++counters_.new_segments;
   initialized_ = false;
-  ref_valid_ = false;
-  plane_hints_.clear();
+  initializer_.drop_reference();
   have_pose_ = false;
   poor_prediction_ = true;
   velocity_ = SE3d::Identity();
@@ -904,7 +807,7 @@ Tracker::StartPoll Tracker::poll_segment_start() {
     // Never written (map full): this segment id holds nothing; initialize the next one.
     ++counters_.segment_starts_refused;
     initialized_ = false;
-    ref_valid_ = false;
+    initializer_.drop_reference();
     have_pose_ = false;
     poor_prediction_ = true;
     if (segments_started_ >= opts_.max_segments) {
@@ -920,7 +823,7 @@ Tracker::StartPoll Tracker::poll_segment_start() {
   // In the map: the tracked-point histogram of the start frame (every point was made in the
   // first keyframe) and the anchor for the frames that follow.
   histogram_.clear();
-  for (int i = 0; i < start_.num_points; ++i) histogram_.add(rec.first);
+  for (int i = 0; i < initializer_.start_points(); ++i) histogram_.add(rec.first);
   recent_[recent_next_] = histogram_;
   recent_next_ = (recent_next_ + 1) % recent_.size();
   anchor_kf_ = rec.last;
@@ -947,27 +850,7 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   if (start_to_queue_) {
     // The segment's start: its keyframes and points, as initialization made them.
     job.kind = map::KeyframeJobKind::kSegmentStart;
-    map::SegmentStart& st = job.start;
-    const auto un = static_cast<std::size_t>(n);
-    st.num_views = start_.num_views;
-    st.ref_seq = start_.ref_seq;
-    st.ref_t_ns = start_.ref_t_ns;
-    st.ref_num_keypoints = 0;
-    if (start_.num_views == 2) {
-      const int m = std::min(start_.ref_num_keypoints, static_cast<int>(st.ref_keypoints.size()));
-      st.ref_num_keypoints = m;
-      std::copy_n(ref_kps_.begin(), m, st.ref_keypoints.begin());
-      std::copy_n(ref_descs_.begin(), m, st.ref_descriptors.begin());
-      std::copy_n(start_.ref_depth.begin(), m, st.ref_depth.begin());
-      std::copy_n(start_.ref_confidence.begin(), m, st.ref_confidence.begin());
-    }
-    std::copy_n(start_.depth.begin(), un, st.depth.begin());
-    std::copy_n(start_.confidence.begin(), un, st.confidence.begin());
-    const int np = std::min(start_.num_points, static_cast<int>(st.points_w.size()));
-    st.num_points = np;
-    std::copy_n(start_.points_w.begin(), np, st.points_w.begin());
-    std::copy_n(start_.first_keypoint.begin(), np, st.first_keypoint.begin());
-    std::copy_n(start_.second_keypoint.begin(), np, st.second_keypoint.begin());
+    initializer_.fill_segment_start(job.start, n);
     job.has_sensor_depth = false;
     job.num_recent = 0;
     return;
@@ -1009,260 +892,42 @@ void Tracker::keep_recent_frames(int count, double spacing_s) {
 
 // ---- Initialization --------------------------------------------------------------------
 
-void Tracker::set_reference(const hal::Frame& frame) {
-  ref_kps_.assign(kps_.begin(), kps_.end());
-  ref_descs_.assign(descs_.begin(), descs_.end());
-  ref_prev_.clear();
-  for (const auto& k : kps_) ref_prev_.emplace_back(k.x, k.y);
-  ref_valid_ = true;
-  plane_hints_.clear();
-  ref_seq_ = frame.seq;
-  ref_t_ns_ = frame.t_ns;
-}
-
-int Tracker::match_reference() {
-  std::fill_n(kp_cand_.begin(), kps_.size(), kNoMatch);
-  ref_match_.assign(ref_kps_.size(), kNoMatch);
-  const double r = opts_.init.search_radius_px;
-  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
-    const int level = ref_kps_[i].level;
-    const auto [best, second, best_k] =
-        search_radius(ref_prev_[i], r, level - 1, level + 1, ref_descs_[i]);
-    if (best_k == kNoMatch || best > opts_.init.max_hamming) continue;
-    if (second != std::numeric_limits<int>::max() && best > opts_.init.ratio * second) continue;
-    const auto bk = static_cast<std::size_t>(best_k);
-    if (kp_cand_[bk] != kNoMatch) {
-      if (kp_dist_[bk] <= best) continue;
-      ref_match_[static_cast<std::size_t>(kp_cand_[bk])] = kNoMatch;
-    }
-    kp_cand_[bk] = static_cast<std::int32_t>(i);
-    kp_dist_[bk] = best;
-    ref_match_[i] = best_k;
-  }
-  init_uv0_.clear();
-  init_uv1_.clear();
-  init_ref_idx_.clear();
-  init_cur_idx_.clear();
-  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
-    const int k = ref_match_[i];
-    if (k == kNoMatch) continue;
-    const features::Keypoint& kp = kps_[static_cast<std::size_t>(k)];
-    init_uv0_.emplace_back(ref_kps_[i].x, ref_kps_[i].y);
-    init_uv1_.emplace_back(kp.x, kp.y);
-    init_ref_idx_.push_back(static_cast<std::int32_t>(i));
-    init_cur_idx_.push_back(k);
-    ref_prev_[i] = Eigen::Vector2d(kp.x, kp.y);
-  }
-  return static_cast<int>(init_uv0_.size());
-}
-
-bool Tracker::focal_from_reference(int matches) {
-  if (matches < opts_.init.two_view.min_matches) return false;
-  depth_scratch_.clear();
-  for (std::size_t i = 0; i < init_uv0_.size(); ++i) {
-    depth_scratch_.push_back((init_uv1_[i] - init_uv0_[i]).norm());
-  }
-  if (upper_median(depth_scratch_) < opts_.focal.min_disparity_px) return false;
-  const geometry::FocalEstimate est = geometry::estimate_focal_two_view(
-      init_uv0_, init_uv1_, K_.cx, K_.cy, focal_.initial, opts_.pnp.seed);
-  if (!est.ok) {
-    MER_LOG_DEBUG("focal estimate refused: %.2f px, relative sigma %.4f, %d inliers", est.focal,
-                  est.relative_sigma, est.num_inliers);
-    return false;
-  }
-  focal_estimates_.push_back(est.focal);
-  depth_scratch_.assign(focal_estimates_.begin(), focal_estimates_.end());
-  const double med = upper_median(depth_scratch_);
-  K_ = K_.with_focal(med);
-  focal_.value = med;
-  focal_.estimates = static_cast<int>(focal_estimates_.size());
-  MER_LOG_INFO("focal estimate %.2f px (median %.2f over %d)", est.focal, med, focal_.estimates);
-  return true;
-}
-
-bool Tracker::reference_too_old(std::int64_t t_ns) const {
-  const double max_age_s = plane_hints_.empty() ? opts_.init.max_reference_age_s
-                                                : opts_.init.max_plane_hint_reference_age_s;
-  return static_cast<double>(t_ns - ref_t_ns_) * 1e-9 > max_age_s;
-}
-
-bool Tracker::initialize_mono(const hal::Frame& frame, TrackingResult& r) {
-  if (static_cast<int>(kps_.size()) < opts_.init.min_features) {
-    ref_valid_ = false;
-    return false;
-  }
-  if (!ref_valid_) {
-    set_reference(frame);
-    return false;
-  }
-  const int m = match_reference();
-  if (m < opts_.init.two_view.min_matches) {
-    set_reference(frame);
-    return false;
-  }
-  if (focal_.estimated && focal_.estimates < opts_.focal.min_init_estimates) {
-    (void)focal_from_reference(m);
-    if (focal_.estimates < opts_.focal.min_init_estimates) {
-      if (reference_too_old(frame.t_ns)) set_reference(frame);
-      return false;
-    }
-  }
-  ++counters_.init_attempts;
-  const geometry::TwoViewResult tv =
-      geometry::reconstruct_two_view(init_uv0_, init_uv1_, K_, opts_.init.two_view, plane_hints_);
-  if (!tv.ok) {
-    if (opts_.init.plane_hints && plane_hints_.empty()) plane_hints_ = tv.plane_normals_c0;
+void Tracker::initialize(const hal::Frame& frame, TrackingResult& r) {
+  const InitDecision d = initializer_.spin_once(frame, grid_, K_, focal_);
+  K_ = d.K;
+  if (d.two_view_tried) ++counters_.init_attempts;
+  if (d.refusal == InitRefusal::kTwoView) {
     ++counters_.init_refusals;
-    counters_.last_init_refusal = geometry::to_string(tv.refusal);
-    MER_LOG_DEBUG("frame %llu: initialization refused (%s)",
-                  static_cast<unsigned long long>(frame.seq), geometry::to_string(tv.refusal));
-    if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns)) {
-      set_reference(frame);
-    }
-    return false;
+    counters_.last_init_refusal = refusal_name(d);
   }
-
-  // Two keyframes: the reference (world frame) and this frame, with the points triangulated
-  // in the reference. Keyframe creation writes them to the map (the tracking thread never
-  // takes the map's writer lock); tracking resumes once they are in (poll_segment_start).
-  const SE3d T_w_c1 = orthonormalized(tv.T_c1_c0).inverse();
-  std::fill_n(start_.ref_depth.begin(), ref_kps_.size(), 0.0F);
-  std::fill_n(start_.ref_confidence.begin(), ref_kps_.size(), 0.0F);
-  std::fill_n(start_.depth.begin(), kps_.size(), 0.0F);
-  std::fill_n(start_.confidence.begin(), kps_.size(), 0.0F);
-  depth_scratch_.clear();
-  int ni = 0;
-  for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
-    if (tv.triangulated[i] == 0) continue;
-    const Eigen::Vector3d& X = tv.points_c0[i];
-    const auto k0 = static_cast<std::size_t>(init_ref_idx_[i]);
-    const auto k = static_cast<std::size_t>(init_cur_idx_[i]);
-    const double z1 = (tv.T_c1_c0 * X).z();
-    start_.ref_depth[k0] = static_cast<float>(X.z());
-    start_.depth[k] = static_cast<float>(z1);
-    start_.ref_confidence[k0] = 1.0F;
-    start_.confidence[k] = 1.0F;
-    const auto ui = static_cast<std::size_t>(ni);
-    start_.points_w[ui] = X;
-    start_.first_keypoint[ui] = static_cast<std::uint32_t>(k0);
-    start_.second_keypoint[ui] = static_cast<std::uint32_t>(k);
-    inlier_x_[ui] = kps_[k].x;
-    inlier_y_[ui] = kps_[k].y;
-    ++ni;
-    depth_scratch_.push_back(z1);
-  }
-  start_.num_points = ni;
-  start_.num_views = 2;
-  start_.ref_seq = ref_seq_;
-  start_.ref_t_ns = ref_t_ns_;
-  start_.ref_num_keypoints = static_cast<int>(ref_kps_.size());
+  if (!d.started) return;
+  // The segment's first keyframes and points go to keyframe creation (the tracking thread
+  // never takes the map's writer lock); tracking resumes once they are in
+  // (poll_segment_start).
   begin_segment_start(r);
-  median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
-  T_c_w_ = orthonormalized(tv.T_c1_c0);
+  median_depth_ = d.median_depth;
+  T_c_w_ = d.T_c_w;
   velocity_ = SE3d::Identity();
   have_pose_ = true;
-  poor_prediction_ = true;
+  poor_prediction_ = d.num_views == 2;  // after a two-view start: the wide radius
   initialized_ = true;
   if (!counters_.initialized) {
     counters_.initialized_seq = frame.seq;
-    counters_.reference_seq = ref_seq_;
+    counters_.reference_seq = d.ref_seq;
   }
-  counters_.segment_reference_seq = ref_seq_;
+  if (d.num_views == 2) counters_.segment_reference_seq = d.ref_seq;
   counters_.initialized = true;
-  fix_focal_at_init(frame.seq);
-  policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
+  policy_.reset(d.num_points, frame.t_ns, T_c_w_.inverse().translation());
   r.state = TrackState::kTracked;
-  r.T_w_c = T_w_c1;
-  r.num_inliers = ni;
-  r.num_matches = m;
-  r.focal = K_.fx;
-  last_T_w_c_ = T_w_c1;
-  // Anchored to its own keyframe (made by the job).
-  r.has_anchor = true;
-  r.anchor_t_ns = frame.t_ns;
-  r.T_kf_c = T_w_c1.inverse() * T_w_c1;
-  ++counters_.tracked;
-  if (tv.model == geometry::TwoViewModel::kEssential) {
-    MER_LOG_INFO(
-        "initialized at frame %llu from frame %llu: essential model, %d points, parallax %.2f "
-        "deg, translation direction sigma %.3f deg",
-        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
-        tv.median_parallax_deg, tv.translation_dir_sigma_deg);
-  } else {
-    MER_LOG_INFO(
-        "initialized at frame %llu from frame %llu: homography model, %d points, parallax %.2f deg",
-        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
-        tv.median_parallax_deg);
-  }
-  return true;
-}
-
-bool Tracker::initialize_rgbd(const hal::Frame& frame, TrackingResult& r) {
-  if (frame.depth.empty()) return false;
-  if (focal_.estimated && focal_.estimates < opts_.focal.min_init_estimates) {
-    if (!ref_valid_ || static_cast<int>(kps_.size()) < opts_.init.min_features) {
-      set_reference(frame);
-      return false;
-    }
-    const int m = match_reference();
-    if (m < opts_.init.two_view.min_matches || reference_too_old(frame.t_ns)) {
-      set_reference(frame);
-      return false;
-    }
-    (void)focal_from_reference(m);
-    if (focal_.estimates < opts_.focal.min_init_estimates) return false;
-  }
-  // One keyframe, this frame (the world frame), with a point per keypoint with depth;
-  // keyframe creation writes them to the map (as in initialize_mono).
-  std::fill_n(start_.depth.begin(), kps_.size(), 0.0F);
-  std::fill_n(start_.confidence.begin(), kps_.size(), 0.0F);
-  int valid = 0;
-  for (std::size_t i = 0; i < kps_.size(); ++i) {
-    const float d = sample_depth(frame.depth, kps_[i].x, kps_[i].y, opts_.rgbd_max_depth_step);
-    if (d < kRgbdMinDepthM || d > kRgbdMaxDepthM) continue;
-    start_.depth[i] = d;
-    start_.confidence[i] = 1.0F;
-    ++valid;
-  }
-  if (valid < opts_.init.rgbd_min_points) return false;
-  depth_scratch_.clear();
-  int ni = 0;
-  for (std::size_t i = 0; i < kps_.size(); ++i) {
-    if (start_.depth[i] <= 0.0F) continue;
-    const auto ui = static_cast<std::size_t>(ni);
-    start_.points_w[ui] = K_.unproject({kps_[i].x, kps_[i].y}) * start_.depth[i];
-    start_.first_keypoint[ui] = static_cast<std::uint32_t>(i);
-    depth_scratch_.push_back(start_.depth[i]);
-    ++ni;
-  }
-  start_.num_points = ni;
-  start_.num_views = 1;
-  begin_segment_start(r);
-  median_depth_ = std::max(upper_median(depth_scratch_), 1e-6);
-  T_c_w_ = SE3d::Identity();
-  velocity_ = SE3d::Identity();
-  have_pose_ = true;
-  poor_prediction_ = false;
-  initialized_ = true;
-  if (!counters_.initialized) {
-    counters_.initialized_seq = frame.seq;
-    counters_.reference_seq = frame.seq;
-  }
-  counters_.initialized = true;
-  fix_focal_at_init(frame.seq);
-  policy_.reset(ni, frame.t_ns, T_c_w_.inverse().translation());
-  r.state = TrackState::kTracked;
-  r.T_w_c = SE3d::Identity();
-  r.num_inliers = ni;
+  r.T_w_c = d.T_w_c;
+  r.num_inliers = d.num_points;
+  r.num_matches = d.num_matches;
   r.focal = K_.fx;
   last_T_w_c_ = r.T_w_c;
   r.has_anchor = true;  // anchored to its own keyframe (made by the job)
   r.anchor_t_ns = frame.t_ns;
   r.T_kf_c = r.T_w_c.inverse() * r.T_w_c;
   ++counters_.tracked;
-  MER_LOG_INFO("initialized (RGB-D) at frame %llu with %d points",
-               static_cast<unsigned long long>(frame.seq), ni);
-  return true;
 }
 
 // ---- Entry point -------------------------------------------------------------------------
@@ -1364,11 +1029,11 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
   extractor_->extract(frame.gray);
   kps_ = extractor_->keypoints();
   descs_ = extractor_->descriptors();
-  if (kps_.size() > grid_items_.size()) {
-    kps_ = kps_.first(grid_items_.size());
-    descs_ = descs_.first(grid_items_.size());
+  if (kps_.size() > grid_.capacity()) {
+    kps_ = kps_.first(grid_.capacity());
+    descs_ = descs_.first(grid_.capacity());
   }
-  build_grid();
+  grid_.build(kps_, descs_);
   r.step_ns[static_cast<std::size_t>(TrackStep::kExtract)] = elapsed_ns(t_extract);
   r.num_features = static_cast<std::int32_t>(kps_.size());
   std::uint64_t h = kFnvOffset;
@@ -1408,11 +1073,7 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
   if (returning && !return_to_segment_of_hint()) hint_.valid = false;
   if (!initialized_) {
     r.state = TrackState::kNotInitialized;
-    if (rgbd_) {
-      (void)initialize_rgbd(frame, r);
-    } else {
-      (void)initialize_mono(frame, r);
-    }
+    initialize(frame, r);
     advance_state(r);  // (a start anchors its frame to its own keyframe)
     return r;
   }

@@ -10,8 +10,8 @@
 ///    pose and a final refinement (with `focal: auto`, the focal length is estimated
 ///    jointly until it is stable, then fixed to the running median);
 /// 5. keyframe decision (inlier count, spread, KL jump of the tracked-point histogram).
-/// Before a map exists it initializes: two-view reconstruction (monocular) or one frame
-/// with depth (RGB-D). Lost frames are reported and, after
+/// Before a map exists its Initializer (initializer.h) decides: two-view reconstruction
+/// (monocular) or one frame with depth (RGB-D). Lost frames are reported and, after
 /// `relocalize_after_lost_frames`, offered to the relocalizer (which runs outside tracking);
 /// a pose it finds is the prediction of the next frame (TrackerState: the state machine),
 /// trusted at once within the motion bound of a short loss, refused outside it, and after a
@@ -32,14 +32,16 @@
 
 #include <array>
 #include <cstdint>
-#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "core/sensor_mode.h"
 #include "features/extractor.h"
+#include "frontend/focal_estimator.h"
+#include "frontend/initializer.h"
 #include "frontend/keyframe_policy.h"
+#include "frontend/keypoint_grid.h"
 #include "frontend/tracking_options.h"
 #include "frontend/tracking_result.h"
 #include "geometry/camera_model.h"
@@ -50,16 +52,6 @@
 #include "map/map.h"
 
 namespace mer::frontend {
-
-/// Focal-length estimation outcome (summary.json `focal`).
-struct FocalReport {
-  bool estimated = false;          ///< focal: auto
-  double initial = 0.0;            ///< guess the run started from, px
-  double value = 0.0;              ///< current (final) focal length, px
-  bool fixed = false;              ///< stopped estimating
-  std::int64_t fixed_at_seq = -1;  ///< frame it was fixed at
-  int estimates = 0;               ///< estimates the running median was taken over
-};
 
 /// A lost frame's features, handed to the relocalizer (filled by
 /// Tracker::fill_relocalization_request; sized once by Tracker::reserve_relocalization_request,
@@ -169,23 +161,13 @@ class Tracker {
   /// apart, for keyframe jobs (dense multi-view depth); fill_keyframe_job copies them into
   /// KeyframeJob::recent_*. Call before the first frame (allocates the ring).
   void keep_recent_frames(int count, double spacing_s);
-  const FocalReport& focal() const { return focal_; }
+  const FocalReport& focal() const { return focal_.report(); }
   const TrackerCounters& counters() const { return counters_; }
   const geometry::Pinhole& intrinsics() const { return K_; }
   /// The per-frame motion (world-to-camera) the next frame's prediction applies.
   const SE3d& velocity() const { return velocity_; }
 
  private:
-  /// Best and second-best descriptor distance among the keypoints within `r` px of `uv` on
-  /// pyramid levels [min_level, max_level]; index -1 when none.
-  struct RadiusMatch {
-    int best = std::numeric_limits<int>::max();
-    int second = std::numeric_limits<int>::max();
-    int index = -1;
-  };
-  RadiusMatch search_radius(const Eigen::Vector2d& uv, double r, int min_level, int max_level,
-                            const features::Descriptor& desc) const;
-  void build_grid();
   void gather_queries(const SE3d& T_c_w, TrackingResult& r);
   int project_and_match(const SE3d& T_c_w, double radius_px, bool tight);
   int collect_correspondences();
@@ -201,17 +183,16 @@ class Tracker {
   /// an earlier segment: the keyframe relocalized against); none when neither is live.
   void set_anchor(TrackingResult& r);
   bool track(const hal::Frame& frame, TrackingResult& r);
-  /// Hands the segment's start (start_, filled by an initialization) to keyframe creation:
-  /// r asks for a keyframe job, which fill_keyframe_job fills from start_.
+  /// Asks the initializer with the frame; a start becomes the frame's pose and the segment's
+  /// start (begin_segment_start).
+  void initialize(const hal::Frame& frame, TrackingResult& r);
+  /// Hands the segment's start (the initializer's last) to keyframe creation: r asks for a
+  /// keyframe job, which fill_keyframe_job fills from it.
   void begin_segment_start(TrackingResult& r);
   enum class StartPoll : std::uint8_t { kPending, kInserted, kRefused };
   /// Whether keyframe creation has written the segment's start: kInserted (tracking resumes
   /// from it), kPending, or kRefused (the next segment is initialized).
   StartPoll poll_segment_start();
-  bool initialize_mono(const hal::Frame& frame, TrackingResult& r);
-  bool initialize_rgbd(const hal::Frame& frame, TrackingResult& r);
-  void set_reference(const hal::Frame& frame);
-  bool reference_too_old(std::int64_t t_ns) const;
   /// Updates the state machine after a frame (tracked or not) and fills r's state fields.
   void advance_state(TrackingResult& r);
   /// Forgets the current segment's tracking state and initializes the next segment from the
@@ -237,10 +218,7 @@ class Tracker {
   /// In state new_segment with a relocalizer's pose: back to that keyframe's segment (its
   /// median keyframe depth as the query range). False when the keyframe is gone.
   bool return_to_segment_of_hint();
-  int match_reference();
-  bool focal_from_reference(int matches);
   void update_focal(double f, std::uint64_t seq);
-  void fix_focal_at_init(std::uint64_t seq);
 
   TrackingOptions opts_;
   map::Map& map_;
@@ -248,21 +226,17 @@ class Tracker {
   geometry::Pinhole K_;
   int width_;
   int height_;
-  bool rgbd_;  // sensor mode is rgbd
-  FocalReport focal_;
+  FocalEstimator focal_;
   TrackerCounters counters_;
   std::unique_ptr<features::Extractor> extractor_;
   std::unique_ptr<geometry::PnpRansac> pnp_;
   KeyframePolicy policy_;
+  Initializer initializer_;
 
   // Frame state.
   std::span<const features::Keypoint> kps_;
   std::span<const features::Descriptor> descs_;
-  int grid_cols_ = 0;
-  int grid_rows_ = 0;
-  std::vector<std::int32_t> grid_start_;  // cols*rows + 1
-  std::vector<std::int32_t> grid_items_;  // keypoint indices sorted by cell
-  std::vector<std::int32_t> grid_fill_;
+  KeypointGrid grid_;
 
   // Query and match buffers.
   std::vector<std::uint32_t> stamp_;  // per map-point: frame stamp it was last queried in
@@ -313,24 +287,8 @@ class Tracker {
   std::vector<double> depth_scratch_;
   std::uint64_t frames_since_init_ = 0;
 
-  // Initialization.
+  // Initialization (the segment's start is the initializer's last).
   bool initialized_ = false;
-  bool ref_valid_ = false;
-  std::uint64_t ref_seq_ = 0;
-  std::int64_t ref_t_ns_ = 0;
-  std::vector<Eigen::Vector3d> plane_hints_;  ///< plane normals of the reference's first planar tie
-  std::vector<features::Keypoint> ref_kps_;
-  std::vector<features::Descriptor> ref_descs_;
-  std::vector<Eigen::Vector2d> ref_prev_;  // last matched position of each reference keypoint
-  std::vector<std::int32_t> ref_match_;    // current keypoint matched to each reference keypoint
-  std::vector<Eigen::Vector2d> init_uv0_;
-  std::vector<Eigen::Vector2d> init_uv1_;
-  std::vector<std::int32_t> init_ref_idx_;
-  std::vector<std::int32_t> init_cur_idx_;
-  std::vector<double> focal_estimates_;
-  int focal_stable_count_ = 0;
-  // The segment's start handed to keyframe creation: its keyframes' depths and points.
-  map::SegmentStart start_;
   bool start_to_queue_ = false;  // the frame just tracked asks for the start's job
   bool start_pending_ = false;   // the start is not in the map yet
 

@@ -1,0 +1,193 @@
+// The initializer on rendered room frames: degenerate starts (a blank frame, the same frame
+// twice, no depth) are refused with their reason, a two-view start's motion matches the true
+// one, and an RGB-D frame with depth starts at once.
+#include "frontend/initializer.h"
+
+#include <cmath>
+#include <cstdio>
+#include <memory>
+
+#include <gtest/gtest.h>
+
+#include "features/extractor.h"
+#include "hal/synthetic/synthetic_camera.h"
+
+namespace mer::frontend {
+namespace {
+
+constexpr double kFps = 30.0;
+constexpr double kRadToDeg = 180.0 / M_PI;
+
+/// Renders room_orbit's room from given poses and hands each frame's features to an
+/// Initializer, as the tracker does.
+struct InitRig {
+  TrackingOptions opts;
+  hal::SyntheticOptions cam_opts;
+  std::unique_ptr<hal::SyntheticCamera> cam;
+  hal::Frame frame;
+  geometry::Pinhole K;
+  std::unique_ptr<features::Extractor> extractor;
+  KeypointGrid grid;
+  std::unique_ptr<FocalEstimator> focal;
+  std::unique_ptr<Initializer> init;
+
+  explicit InitRig(SensorMode mode) {
+    cam_opts.num_frames = 100000;
+    cam = std::make_unique<hal::SyntheticCamera>("room_orbit", cam_opts, false);
+    EXPECT_TRUE(cam->open(8).is_ok());
+    frame.gray.create(cam_opts.height, cam_opts.width, CV_8UC1);
+    frame.depth.create(cam_opts.height, cam_opts.width, CV_32FC1);
+    const auto& k = cam->intrinsics();
+    K = {k.fx, k.fy, k.cx, k.cy};
+    auto ex = features::make_extractor(opts.extractor, cam_opts.width, cam_opts.height);
+    EXPECT_TRUE(ex.is_ok());
+    extractor = std::move(ex.value());
+    const int max_kp = opts.extractor.num_features + opts.extractor.num_levels;
+    grid.reserve(cam_opts.width, cam_opts.height, opts.match.grid_cell_px, max_kp);
+    focal = std::make_unique<FocalEstimator>(opts.focal, K.fx, false);
+    focal->reserve();
+    init = std::make_unique<Initializer>(opts, mode);
+    init->reserve(max_kp);
+  }
+
+  /// Renders frame `seq` at `T_w_c` (`noise_index`: the image noise's draw).
+  void render(std::uint64_t seq, const SE3d& T_w_c, std::uint64_t noise_index) {
+    frame.seq = seq;
+    frame.t_ns = static_cast<std::int64_t>(static_cast<double>(seq) / kFps * 1e9);
+    frame.has_ground_truth = true;
+    frame.T_w_c_gt = T_w_c;
+    cam->render(T_w_c, frame.gray, &frame.depth, noise_index);
+  }
+
+  /// Extracts the current frame's features and asks the initializer.
+  InitDecision decide() {
+    extractor->extract(frame.gray);
+    grid.build(extractor->keypoints(), extractor->descriptors());
+    const InitDecision d = init->spin_once(frame, grid, K, *focal);
+    K = d.K;
+    return d;
+  }
+};
+
+// A sideways walk at 0.3 m/s past the room's centre, looking at a fixed point near the
+// (-x, -y) corner: two walls, the floor and boxes in view, the camera turning as it moves.
+SE3d corner_walk(int i) {
+  const Eigen::Vector3d side = Eigen::Vector3d(2.5, -3.0, 0.0).normalized();
+  const Eigen::Vector3d eye = Eigen::Vector3d(0.0, 0.0, 1.3) + 0.01 * i * side;
+  return look_at(eye, Eigen::Vector3d(-2.5, -2.0, 1.0), Eigen::Vector3d::UnitZ());
+}
+
+TEST(Initializer, BlankFrameIsRefusedForTooFewFeatures) {
+  InitRig rig(SensorMode::kMono);
+  rig.render(0, corner_walk(0), 0);
+  rig.frame.gray.setTo(0);
+  const InitDecision d = rig.decide();
+  EXPECT_FALSE(d.started);
+  EXPECT_EQ(d.refusal, InitRefusal::kTooFewFeatures);
+  EXPECT_STREQ(refusal_name(d), "too_few_features");
+  EXPECT_FALSE(d.two_view_tried);
+  EXPECT_FALSE(rig.init->has_reference());
+}
+
+TEST(Initializer, SameFrameTwiceIsRefusedAsStatic) {
+  InitRig rig(SensorMode::kMono);
+  rig.render(0, corner_walk(0), 0);
+  const InitDecision first = rig.decide();
+  EXPECT_FALSE(first.started);
+  EXPECT_EQ(first.refusal, InitRefusal::kNoReference);
+  ASSERT_TRUE(rig.init->has_reference());
+  EXPECT_EQ(rig.init->reference_seq(), 0U);
+
+  // The same image again (a later frame number): every keypoint matches where it was.
+  rig.render(1, corner_walk(0), 0);
+  const InitDecision second = rig.decide();
+  EXPECT_FALSE(second.started);
+  EXPECT_TRUE(second.two_view_tried);
+  EXPECT_EQ(second.refusal, InitRefusal::kTwoView);
+  EXPECT_EQ(second.two_view, geometry::TwoViewRefusal::kStatic);
+  EXPECT_STREQ(refusal_name(second), "static");  // summary.json `last_init_refusal`
+  // The reference is kept: it is not too old yet.
+  EXPECT_EQ(rig.init->reference_seq(), 0U);
+}
+
+TEST(Initializer, RgbdFrameWithoutDepthIsRefused) {
+  InitRig rig(SensorMode::kRgbd);
+  rig.render(0, corner_walk(0), 0);
+  rig.frame.depth = cv::Mat();
+  const InitDecision d = rig.decide();
+  EXPECT_FALSE(d.started);
+  EXPECT_EQ(d.refusal, InitRefusal::kNoDepth);
+  EXPECT_STREQ(refusal_name(d), "no_depth");
+}
+
+TEST(Initializer, RgbdStartsFromOneFrameWithDepth) {
+  InitRig rig(SensorMode::kRgbd);
+  rig.render(5, corner_walk(0), 5);
+  const InitDecision d = rig.decide();
+  ASSERT_TRUE(d.started) << refusal_name(d);
+  EXPECT_EQ(d.num_views, 1);
+  EXPECT_EQ(d.ref_seq, 5U);
+  EXPECT_TRUE(d.T_c_w.isApprox(SE3d::Identity()));
+  EXPECT_GE(d.num_points, rig.opts.init.rgbd_min_points);
+  // The points are the keypoints' sensor depths: the median is the scene's, metres.
+  EXPECT_GT(d.median_depth, 1.0);
+  EXPECT_LT(d.median_depth, 5.0);
+  map::SegmentStart st;
+  st.reserve(static_cast<int>(rig.grid.capacity()));
+  rig.init->fill_segment_start(st, static_cast<int>(rig.grid.keypoints().size()));
+  EXPECT_EQ(st.num_views, 1);
+  EXPECT_EQ(st.num_points, d.num_points);
+  EXPECT_EQ(st.ref_num_keypoints, 0);
+}
+
+// Walking sideways, the two-view start comes within a second and its motion (the frame's pose
+// in the reference camera's frame, translation up to scale) is the true one.
+TEST(Initializer, TwoViewStartMatchesTheTrueMotion) {
+  InitRig rig(SensorMode::kMono);
+  InitDecision d;
+  int start = -1;
+  for (int i = 0; i < 30 && start < 0; ++i) {
+    rig.render(static_cast<std::uint64_t>(i), corner_walk(i), static_cast<std::uint64_t>(i));
+    d = rig.decide();
+    if (d.started) start = i;
+  }
+  ASSERT_GE(start, 0) << "no start in 30 frames; last refusal " << refusal_name(d);
+  EXPECT_EQ(d.num_views, 2);
+  EXPECT_TRUE(d.two_view_tried);
+  EXPECT_GE(d.num_points, rig.opts.init.two_view.min_triangulated);
+  EXPECT_GE(d.num_matches, d.num_points);
+  EXPECT_NEAR(d.median_depth, 1.0, 0.5);  // points at unit median depth in the reference
+
+  const auto ref = static_cast<int>(d.ref_seq);
+  ASSERT_LT(ref, start);
+  const SE3d T_ref_c_gt = corner_walk(ref).inverse() * corner_walk(start);
+  const double rot_err_deg =
+      Eigen::AngleAxisd(d.T_w_c.linear() * T_ref_c_gt.linear().transpose()).angle() * kRadToDeg;
+  const Eigen::Vector3d t_est = d.T_w_c.translation().normalized();
+  const Eigen::Vector3d t_gt = T_ref_c_gt.translation().normalized();
+  const double dir_err_deg = std::atan2(t_est.cross(t_gt).norm(), t_est.dot(t_gt)) * kRadToDeg;
+  std::printf(
+      "two-view start at frame %d from %d: %d points, rotation error %.3f deg (true %.2f deg), "
+      "direction error %.3f deg\n",
+      start, ref, d.num_points, rot_err_deg,
+      Eigen::AngleAxisd(T_ref_c_gt.linear()).angle() * kRadToDeg, dir_err_deg);
+  EXPECT_LT(rot_err_deg, 0.3);
+  EXPECT_LT(dir_err_deg, 2.0);
+  EXPECT_TRUE((d.T_c_w * d.T_w_c).isApprox(SE3d::Identity(), 1e-9));
+
+  // The keyframe job's copy of the start: two views, the reference's keypoints, and every
+  // point in front of the reference camera.
+  map::SegmentStart st;
+  st.reserve(static_cast<int>(rig.grid.capacity()));
+  rig.init->fill_segment_start(st, static_cast<int>(rig.grid.keypoints().size()));
+  EXPECT_EQ(st.num_views, 2);
+  EXPECT_EQ(st.ref_seq, d.ref_seq);
+  EXPECT_EQ(st.num_points, d.num_points);
+  EXPECT_GT(st.ref_num_keypoints, 0);
+  for (int p = 0; p < st.num_points; ++p) {
+    EXPECT_GT(st.points_w[static_cast<std::size_t>(p)].z(), 0.0) << "point " << p;
+  }
+}
+
+}  // namespace
+}  // namespace mer::frontend
