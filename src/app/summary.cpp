@@ -185,7 +185,19 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"initialized_seq\": " << tc.initialized_seq
     << ", \"reference_seq\": " << tc.reference_seq << ", \"init_attempts\": " << tc.init_attempts
     << ", \"init_refusals\": " << tc.init_refusals
-    << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal)
+    << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal) << ", \"init_refused\": {";
+  for (std::size_t i = 1; i < tc.init_frame_refusals.size(); ++i) {
+    j << (i > 1 ? ", " : "")
+      << json_string(frontend::to_string(static_cast<frontend::InitRefusal>(i))) << ": "
+      << tc.init_frame_refusals[i];
+  }
+  j << "}, \"init_two_view_refused\": {";
+  for (std::size_t i = 1; i < tc.init_two_view_refusals.size(); ++i) {
+    j << (i > 1 ? ", " : "")
+      << json_string(geometry::to_string(static_cast<geometry::TwoViewRefusal>(i))) << ": "
+      << tc.init_two_view_refusals[i];
+  }
+  j << "}"
     << ", \"tracked\": " << tc.tracked << ", \"lost\": " << tc.lost
     << ", \"wide_searches\": " << tc.wide_searches
     << ", \"segment_start_waits\": " << tc.segment_start_waits

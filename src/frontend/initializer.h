@@ -24,6 +24,7 @@
 /// the tracker never takes the map's writer lock). Setup (reserve) allocates; spin_once may
 /// allocate (the two-view reconstruction does). Not thread-safe: the tracking thread's.
 
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
@@ -52,6 +53,9 @@ enum class InitRefusal : std::uint8_t {
   kTwoView,            ///< the two-view reconstruction refused (InitDecision::two_view says why)
   kTooFewDepthPoints,  ///< RGB-D: fewer keypoints with valid depth than `init.rgbd_min_points`
 };
+/// Number of InitRefusal values (counters indexed by it).
+inline constexpr std::size_t kInitRefusalCount =
+    static_cast<std::size_t>(InitRefusal::kTooFewDepthPoints) + 1;
 
 /// Short name of a refusal ("too_few_matches", ...; "two_view" for kTwoView).
 const char* to_string(InitRefusal r);

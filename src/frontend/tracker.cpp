@@ -896,9 +896,11 @@ void Tracker::initialize(const hal::Frame& frame, TrackingResult& r) {
   const InitDecision d = initializer_.spin_once(frame, grid_, K_, focal_);
   K_ = d.K;
   if (d.two_view_tried) ++counters_.init_attempts;
+  if (!d.started) ++counters_.init_frame_refusals[static_cast<std::size_t>(d.refusal)];
   if (d.refusal == InitRefusal::kTwoView) {
     ++counters_.init_refusals;
-    counters_.last_init_refusal = refusal_name(d);
+    ++counters_.init_two_view_refusals[static_cast<std::size_t>(d.two_view)];
+    counters_.last_init_refusal = refusal_name(d);  // a static name: no allocation
   }
   if (!d.started) return;
   // The segment's first keyframes and points go to keyframe creation (the tracking thread

@@ -113,7 +113,11 @@ struct TrackerCounters {
   std::uint64_t sum_query_spatial = 0;
   std::uint64_t sum_query_total = 0;
   std::uint64_t sum_inliers = 0;
-  std::string last_init_refusal;  ///< reason of the last refused initialization
+  const char* last_init_refusal = "";  ///< reason of the last refused two-view reconstruction
+  /// Frames that did not start a segment, by InitRefusal (kNone unused).
+  std::array<std::uint64_t, kInitRefusalCount> init_frame_refusals{};
+  /// Two-view reconstructions refused, by geometry::TwoViewRefusal (kNone unused).
+  std::array<std::uint64_t, geometry::kTwoViewRefusalCount> init_two_view_refusals{};
 };
 
 /// The tracking stage.

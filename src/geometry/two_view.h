@@ -151,6 +151,9 @@ enum class TwoViewRefusal : std::uint8_t {
   kAmbiguous,           ///< two motion candidates explain the data about equally well
   kUncertainMotion,     ///< below confident_parallax_deg without a well-determined direction
 };
+/// Number of TwoViewRefusal values (counters indexed by it).
+inline constexpr std::size_t kTwoViewRefusalCount =
+    static_cast<std::size_t>(TwoViewRefusal::kUncertainMotion) + 1;
 
 /// Short name of a refusal reason ("pure_rotation", ...).
 const char* to_string(TwoViewRefusal r);

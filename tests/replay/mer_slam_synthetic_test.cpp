@@ -267,6 +267,17 @@ TEST(MerSlamSynthetic, MonoLoopClosureRemovesTheDrift) {
   ASSERT_TRUE(so.isOpened());
   EXPECT_GE(static_cast<int>(s["loop"]["loops_closed"]), 1);
   EXPECT_EQ(static_cast<int>(so["loop"]["loops_closed"]), 0);
+  // Every frame before the monocular start was refused with a reason (lockstep: each one
+  // reaches the initializer), and each refused two-view reconstruction by its own reason.
+  const cv::FileNode tr = s["tracking"];
+  int refused = 0;
+  for (const cv::FileNode& n : tr["init_refused"]) refused += static_cast<int>(n);
+  EXPECT_EQ(refused, static_cast<int>(tr["initialized_seq"]));
+  EXPECT_GE(static_cast<int>(tr["init_refused"]["no_reference"]), 1);
+  int two_view = 0;
+  for (const cv::FileNode& n : tr["init_two_view_refused"]) two_view += static_cast<int>(n);
+  EXPECT_EQ(two_view, static_cast<int>(tr["init_refusals"]));
+  EXPECT_EQ(two_view, static_cast<int>(tr["init_refused"]["two_view"]));
   EXPECT_GE(static_cast<double>(s["accuracy"]["tracked_after_init_pct"]), 100.0);
   const double kf_on = static_cast<double>(s["accuracy_keyframes"]["ate_pct_of_path"]);
   const double kf_off = static_cast<double>(so["accuracy_keyframes"]["ate_pct_of_path"]);
