@@ -1,11 +1,15 @@
 #include "frontend/initializer.h"
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <limits>
 
 #include "core/median.h"
 #include "geometry/depth_sampling.h"
+#include "geometry/lie.h"
 #include "geometry/self_calibration.h"
+#include "geometry/triangulation.h"
 #include "platform/log_ring.h"
 
 namespace mer::frontend {
@@ -14,6 +18,35 @@ namespace {
 constexpr double kRgbdMinDepthM = 0.1;  // RGB-D initialization: valid sensor depth range, m
 constexpr double kRgbdMaxDepthM = 10.0;
 constexpr int kNoMatch = -1;
+constexpr double kChi2Gate2Dof = 5.991;          // 95 % of a 2-dof chi2: pixel error gate / sigma^2
+constexpr int kViewsFirstIterations = 5;         // views placed on the candidate's points first
+constexpr std::size_t kMaxWindowCandidates = 8;  // motion candidates checked on the window
+// Two candidates this close (rotation and translation direction, deg) are the same motion.
+constexpr double kSameCandidateDeg = 0.5;
+// Floor of the variance of per-point cost differences (identical costs: no evidence either way
+// beyond the mean).
+constexpr double kMinVariance = 1e-12;
+constexpr double kRadToDeg = 57.29577951308232;
+
+constexpr double kChi2Gate1Dof = 3.841;  // 95 % of a 1-dof chi2: distance to an epipolar line
+
+/// Squared Sampson distance (px^2 at focal `f`) of the normalized rays x0, x1 from the epipolar
+/// geometry of motion T (camera 1 from camera 0).
+double sampson_px2(const SE3d& T, const Eigen::Vector3d& x0, const Eigen::Vector3d& x1, double f) {
+  const Eigen::Matrix3d E = geometry::hat(T.translation()) * T.linear();
+  const Eigen::Vector3d e_x0 = E * x0;
+  const Eigen::Vector3d et_x1 = E.transpose() * x1;
+  const double num = x1.dot(e_x0);
+  const double den = e_x0.head<2>().squaredNorm() + et_x1.head<2>().squaredNorm();
+  return den > 0.0 ? f * f * num * num / den : 0.0;
+}
+
+double angle_deg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const double na = a.norm();
+  const double nb = b.norm();
+  if (na <= 0.0 || nb <= 0.0) return 180.0;
+  return std::acos(std::clamp(a.dot(b) / (na * nb), -1.0, 1.0)) * kRadToDeg;
+}
 
 // Re-projects the rotation onto SO(3).
 SE3d orthonormalized(const SE3d& T) {
@@ -51,6 +84,12 @@ const char* to_string(InitRefusal r) {
       return "two_view";
     case InitRefusal::kTooFewDepthPoints:
       return "too_few_depth_points";
+    case InitRefusal::kWindowAmbiguous:
+      return "window_ambiguous";
+    case InitRefusal::kWindowUncertain:
+      return "window_uncertain";
+    case InitRefusal::kWindowTooFewPoints:
+      return "window_too_few_points";
   }
   return "?";
 }
@@ -63,6 +102,7 @@ const char* refusal_name(const InitDecision& d) {
 Initializer::Initializer(const TrackingOptions& opts, SensorMode mode)
     : opts_(opts.init),
       min_disparity_px_(opts.focal.min_disparity_px),
+      scale_factor_(opts.extractor.scale_factor),
       seed_(opts.pnp.seed),
       rgbd_max_depth_step_(opts.rgbd_max_depth_step),
       rgbd_(mode == SensorMode::kRgbd) {}
@@ -81,6 +121,21 @@ void Initializer::reserve(int max_keypoints) {
   init_cur_idx_.reserve(n);
   scratch_.reserve(n);
   start_.reserve(max_keypoints);
+  max_keypoints_ = max_keypoints;
+  const auto nv = static_cast<std::size_t>(opts_.window.max_views);
+  win_seq_.assign(nv, 0);
+  win_uv_.assign(nv * n, Eigen::Vector2f::Zero());
+  win_sel_.reserve(n);
+  win_consistent_.reserve(n);
+  for (geometry::WindowBundleAdjuster& ba : ba_) {
+    ba.reserve(opts_.window.max_views + 1, opts_.window.max_points);
+  }
+  point_cost_.assign(kMaxWindowCandidates * static_cast<std::size_t>(opts_.window.max_points), 0.0);
+  win_T_.assign(nv + 1, SE3d::Identity());
+  win_points_c0_.reserve(n);
+  win_good_.reserve(n);
+  tri_T_.reserve(nv + 2);
+  tri_x_.reserve(nv + 2);
 }
 
 void Initializer::drop_reference() {
@@ -111,6 +166,9 @@ void Initializer::set_reference(const hal::Frame& frame, const KeypointGrid& fea
   plane_hints_.clear();
   ref_seq_ = frame.seq;
   ref_t_ns_ = frame.t_ns;
+  win_views_ = 0;
+  win_stride_ = 1;
+  frames_since_ref_ = 0;
 }
 
 int Initializer::match_reference(const KeypointGrid& features) {
@@ -212,14 +270,55 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
     d.two_view = tv.refusal;
     MER_LOG_DEBUG("frame %llu: initialization refused (%s)",
                   static_cast<unsigned long long>(frame.seq), geometry::to_string(tv.refusal));
+    // A homography's motion (a plane fills the view) has a twin the window cannot tell apart
+    // when the camera moves along a line: only an essential model's uncertain motion, or a tie
+    // when asked for, goes to the window.
+    const bool window_decides =
+        (tv.refusal == geometry::TwoViewRefusal::kUncertainMotion &&
+         tv.model == geometry::TwoViewModel::kEssential) ||
+        (tv.refusal == geometry::TwoViewRefusal::kAmbiguous && opts_.window.decide_ties);
+    if (opts_.window.enabled && window_decides && !tv.candidate_motions.empty() &&
+        win_views_ >= opts_.window.min_views &&
+        decide_on_window(frame, tv.candidate_motions, d.K, d)) {
+      make_start(frame, features, win_points_c0_, win_good_, d.T_c_w, m, focal, d);
+      return;
+    }
     if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns)) {
       set_reference(frame, features);
+    } else {
+      remember_frame(frame, features);
     }
     return;
   }
+  make_start(frame, features, tv.points_c0, tv.triangulated, tv.T_c1_c0, m, focal, d);
+  if (tv.model == geometry::TwoViewModel::kEssential) {
+    MER_LOG_INFO(
+        "initialized at frame %llu from frame %llu: essential model, %d points, parallax %.2f "
+        "deg, translation direction sigma %.3f deg",
+        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_),
+        d.num_points, tv.median_parallax_deg, tv.translation_dir_sigma_deg);
+  } else {
+    MER_LOG_INFO(
+        "initialized at frame %llu from frame %llu: homography model, %d points, parallax %.2f deg",
+        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_),
+        d.num_points, tv.median_parallax_deg);
+  }
+}
 
+void Initializer::make_start(const hal::Frame& frame, const KeypointGrid& features,
+                             std::span<const Eigen::Vector3d> points_c0,
+                             std::span<const std::uint8_t> good, const SE3d& T_cur_ref, int matches,
+                             FocalEstimator& focal, InitDecision& d) {
+  const std::span<const features::Keypoint> kps = features.keypoints();
   // Two keyframes: the reference (world frame) and this frame, with the points triangulated
-  // in the reference.
+  // in the reference, scaled to unit median depth there.
+  scratch_.clear();
+  for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
+    if (good[i] != 0) scratch_.push_back(points_c0[i].z());
+  }
+  const double scale = scratch_.empty() ? 1.0 : 1.0 / std::max(upper_median(scratch_), 1e-12);
+  SE3d T = T_cur_ref;
+  T.translation() *= scale;
   std::fill_n(start_.ref_depth.begin(), ref_kps_.size(), 0.0F);
   std::fill_n(start_.ref_confidence.begin(), ref_kps_.size(), 0.0F);
   std::fill_n(start_.depth.begin(), kps.size(), 0.0F);
@@ -227,11 +326,11 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
   scratch_.clear();
   int ni = 0;
   for (std::size_t i = 0; i < init_ref_idx_.size(); ++i) {
-    if (tv.triangulated[i] == 0) continue;
-    const Eigen::Vector3d& X = tv.points_c0[i];
+    if (good[i] == 0) continue;
+    const Eigen::Vector3d X = points_c0[i] * scale;
     const auto k0 = static_cast<std::size_t>(init_ref_idx_[i]);
     const auto k = static_cast<std::size_t>(init_cur_idx_[i]);
-    const double z1 = (tv.T_c1_c0 * X).z();
+    const double z1 = (T * X).z();
     start_.ref_depth[k0] = static_cast<float>(X.z());
     start_.depth[k] = static_cast<float>(z1);
     start_.ref_confidence[k0] = 1.0F;
@@ -249,26 +348,266 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
   start_.ref_t_ns = ref_t_ns_;
   start_.ref_num_keypoints = static_cast<int>(ref_kps_.size());
   d.started = true;
+  d.refusal = InitRefusal::kNone;
+  d.two_view = geometry::TwoViewRefusal::kNone;
   d.num_views = 2;
-  d.T_c_w = orthonormalized(tv.T_c1_c0);
+  d.T_c_w = orthonormalized(T);
   d.T_w_c = d.T_c_w.inverse();
   d.num_points = ni;
-  d.num_matches = m;
+  d.num_matches = matches;
   d.median_depth = std::max(upper_median(scratch_), 1e-6);
   d.ref_seq = ref_seq_;
   focal.fix_at_init(frame.seq);
-  if (tv.model == geometry::TwoViewModel::kEssential) {
-    MER_LOG_INFO(
-        "initialized at frame %llu from frame %llu: essential model, %d points, parallax %.2f "
-        "deg, translation direction sigma %.3f deg",
-        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
-        tv.median_parallax_deg, tv.translation_dir_sigma_deg);
-  } else {
-    MER_LOG_INFO(
-        "initialized at frame %llu from frame %llu: homography model, %d points, parallax %.2f deg",
-        static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_), ni,
-        tv.median_parallax_deg);
+}
+
+void Initializer::remember_frame(const hal::Frame& frame, const KeypointGrid& features) {
+  if (!opts_.window.enabled) return;
+  ++frames_since_ref_;
+  if (frames_since_ref_ % win_stride_ != 0) return;
+  const int max_views = opts_.window.max_views;
+  const auto nk = static_cast<std::size_t>(max_keypoints_);
+  if (win_views_ == max_views) {
+    // Full: keep every other frame (slots 1, 3, ...), the stride doubles.
+    for (int k = 1; k < max_views; k += 2) {
+      const auto from = static_cast<std::size_t>(k);
+      const auto to = static_cast<std::size_t>(k / 2);
+      win_seq_[to] = win_seq_[from];
+      std::copy_n(win_uv_.begin() + static_cast<std::ptrdiff_t>(from * nk), nk,
+                  win_uv_.begin() + static_cast<std::ptrdiff_t>(to * nk));
+    }
+    win_views_ = max_views / 2;
+    win_stride_ *= 2;
+    if (frames_since_ref_ % win_stride_ != 0) return;
   }
+  if (win_views_ >= max_views) return;  // max_views 1: no room after the halving
+  const std::span<const features::Keypoint> kps = features.keypoints();
+  const auto slot = static_cast<std::size_t>(win_views_);
+  win_seq_[slot] = frame.seq;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
+    const int k = ref_match_[i];
+    win_uv_[slot * nk + i] = k == kNoMatch ? Eigen::Vector2f(nan, nan)
+                                           : Eigen::Vector2f(kps[static_cast<std::size_t>(k)].x,
+                                                             kps[static_cast<std::size_t>(k)].y);
+  }
+  ++win_views_;
+}
+
+bool Initializer::decide_on_window(const hal::Frame& frame, std::span<const SE3d> candidates,
+                                   const geometry::Pinhole& K, InitDecision& d) {
+  const InitWindowOptions& wo = opts_.window;
+  const geometry::TwoViewOptions& tvo = opts_.two_view;
+  // The adjustment's points, spread evenly over the matches that were tracked through every
+  // frame of the window (a track lost and found again is more often a wrong match) and lie on
+  // an epipolar line of some candidate (the others are wrong whatever the motion).
+  const std::size_t n = init_uv0_.size();
+  const std::size_t nc = std::min(candidates.size(), kMaxWindowCandidates);
+  win_consistent_.clear();
+  const auto nkk = static_cast<std::size_t>(max_keypoints_);
+  for (std::size_t j = 0; j < n; ++j) {
+    const auto ri = static_cast<std::size_t>(init_ref_idx_[j]);
+    bool continuous = true;
+    for (int w = 0; w < win_views_ && continuous; ++w) {
+      continuous = std::isfinite(win_uv_[static_cast<std::size_t>(w) * nkk + ri].x());
+    }
+    if (!continuous) continue;
+    const double sigma = tvo.sigma_px * std::pow(scale_factor_, ref_kps_[ri].level);
+    const Eigen::Vector3d x0 = K.unproject(init_uv0_[j]);
+    const Eigen::Vector3d x1 = K.unproject(init_uv1_[j]);
+    for (std::size_t c = 0; c < nc; ++c) {
+      if (sampson_px2(candidates[c], x0, x1, K.fx) <= kChi2Gate1Dof * sigma * sigma) {
+        win_consistent_.push_back(static_cast<std::int32_t>(j));
+        break;
+      }
+    }
+  }
+  const std::size_t nconsistent = win_consistent_.size();
+  const auto max_points = static_cast<std::size_t>(wo.max_points);
+  const std::size_t step = std::max<std::size_t>(1, (nconsistent + max_points - 1) / max_points);
+  win_sel_.clear();
+  for (std::size_t j = 0; j < nconsistent && win_sel_.size() < max_points; j += step) {
+    win_sel_.push_back(win_consistent_[j]);
+  }
+  const std::size_t np = win_sel_.size();
+  if (np == 0) {
+    d.refusal = InitRefusal::kWindowTooFewPoints;
+    return false;
+  }
+
+  // 1. Each candidate motion held fixed, the frames in between and the points solved: its
+  //    cost per point, truncated (wrong tracks cost the gate).
+  const int cur = win_views_;
+  std::size_t best = 0;
+  int best_slot = 0;
+  std::array<double, kMaxWindowCandidates> total{};
+  for (std::size_t c = 0; c < nc; ++c) {
+    const int slot = c == 0 ? 0 : 1 - best_slot;
+    solve_candidate(frame, candidates[c], K, slot);
+    const geometry::WindowBundleAdjuster& ba = ba_[static_cast<std::size_t>(slot)];
+    for (std::size_t p = 0; p < np; ++p) {
+      const double cp = ba.point_truncated_cost(static_cast<int>(p), kChi2Gate2Dof);
+      point_cost_[c * max_points + p] = cp;
+      total[c] += cp;
+    }
+    if (c == 0 || total[c] < total[best]) {
+      best = c;
+      best_slot = slot;
+    }
+  }
+  // 2. The best must beat every other (distinct) candidate by a significant margin: the mean
+  //    of the per-point cost differences, over its standard error (a paired test).
+  double evidence = std::numeric_limits<double>::infinity();
+  for (std::size_t c = 0; c < nc; ++c) {
+    if (c == best) continue;
+    if (geometry::rotation_angle(candidates[c].linear(), candidates[best].linear()) * kRadToDeg <=
+            kSameCandidateDeg &&
+        angle_deg(candidates[c].translation(), candidates[best].translation()) <=
+            kSameCandidateDeg) {
+      continue;  // the same motion twice (both models found it)
+    }
+    double sum = 0.0;
+    double sum2 = 0.0;
+    for (std::size_t p = 0; p < np; ++p) {
+      const double diff = point_cost_[c * max_points + p] - point_cost_[best * max_points + p];
+      sum += diff;
+      sum2 += diff * diff;
+    }
+    const double mean = sum / static_cast<double>(np);
+    const double var = std::max(sum2 / static_cast<double>(np) - mean * mean, kMinVariance);
+    evidence = std::min(evidence, mean / std::sqrt(var / static_cast<double>(np)));
+  }
+  // 3. Released, the best motion must stay where it is: a solution of all the frames that
+  //    moves away from it means the motion is not determined yet (low parallax trades
+  //    rotation for translation).
+  geometry::WindowBundleAdjuster& ba = ba_[static_cast<std::size_t>(best_slot)];
+  for (int v = 0; v <= cur; ++v) win_T_[static_cast<std::size_t>(v)] = ba.pose(v);
+  ba.fix_view(-1);
+  ba.set_scale_view(cur);
+  ba.solve(wo.iterations, false);
+  const SE3d& T_free = ba.pose(cur);
+  const SE3d& T = win_T_[static_cast<std::size_t>(cur)];
+  const double moved_rot_deg = geometry::rotation_angle(T_free.linear(), T.linear()) * kRadToDeg;
+  const double moved_dir_deg = angle_deg(T_free.translation(), T.translation());
+  MER_LOG_DEBUG(
+      "frame %llu: window of %d frames from frame %llu, %zu candidates, evidence %.1f sigmas, "
+      "released motion moved %.3f deg (rotation) and %.2f deg (direction)",
+      static_cast<unsigned long long>(frame.seq), win_views_,
+      static_cast<unsigned long long>(ref_seq_), nc, evidence, moved_rot_deg, moved_dir_deg);
+  if (evidence < wo.min_evidence_sigmas) {
+    d.refusal = InitRefusal::kWindowAmbiguous;
+    return false;
+  }
+  if (moved_rot_deg > wo.max_moved_rotation_deg || moved_dir_deg > wo.max_moved_direction_deg) {
+    d.refusal = InitRefusal::kWindowUncertain;
+    return false;
+  }
+
+  // 4. The start's points: every match triangulated from all the views that saw it (the
+  //    candidate's motion, the frames in between as solved with it).
+  const Eigen::Vector3d centre = -(T.linear().transpose() * T.translation());
+  const auto nk = static_cast<std::size_t>(max_keypoints_);
+  win_points_c0_.assign(n, Eigen::Vector3d::Zero());
+  win_good_.assign(n, 0);
+  scratch_.clear();
+  for (std::size_t j = 0; j < n; ++j) {
+    const auto ri = static_cast<std::size_t>(init_ref_idx_[j]);
+    const double sigma = tvo.sigma_px * std::pow(scale_factor_, ref_kps_[ri].level);
+    tri_T_.clear();
+    tri_x_.clear();
+    tri_T_.push_back(SE3d::Identity());
+    tri_x_.push_back(K.unproject(init_uv0_[j]));
+    for (int w = 0; w < win_views_; ++w) {
+      const Eigen::Vector2f& uv = win_uv_[static_cast<std::size_t>(w) * nk + ri];
+      if (!std::isfinite(uv.x())) continue;
+      tri_T_.push_back(win_T_[static_cast<std::size_t>(w)]);
+      tri_x_.push_back(K.unproject(uv.cast<double>()));
+    }
+    tri_T_.push_back(T);
+    tri_x_.push_back(K.unproject(init_uv1_[j]));
+    Eigen::Vector3d X;
+    if (!geometry::triangulate_multi_view(tri_T_, tri_x_, X)) continue;
+    bool fits = true;
+    for (std::size_t k = 0; k < tri_T_.size() && fits; ++k) {
+      const Eigen::Vector3d& x = tri_x_[k];
+      const Eigen::Vector2d seen(K.fx * x.x() + K.cx, K.fy * x.y() + K.cy);
+      fits = (K.project(tri_T_[k] * X) - seen).squaredNorm() <= kChi2Gate2Dof * sigma * sigma;
+    }
+    const double parallax = geometry::parallax_deg(X, Eigen::Vector3d::Zero(), centre);
+    if (!fits || parallax < tvo.min_point_parallax_deg) continue;
+    win_points_c0_[j] = X;
+    win_good_[j] = 1;
+    scratch_.push_back(parallax);
+  }
+  const auto good = static_cast<int>(scratch_.size());
+  const double median_parallax = scratch_.empty() ? 0.0 : upper_median(scratch_);
+  if (good < tvo.min_triangulated || median_parallax < tvo.min_parallax_deg) {
+    d.refusal = InitRefusal::kWindowTooFewPoints;
+    return false;
+  }
+  d.T_c_w = T;
+  d.window_views = win_views_;
+  MER_LOG_INFO(
+      "initialized at frame %llu from frame %llu: window of %d frames, %zu motion candidate(s) "
+      "(evidence %.1f sigmas), released motion moved %.3f deg / %.2f deg, %d points, parallax "
+      "%.2f deg",
+      static_cast<unsigned long long>(frame.seq), static_cast<unsigned long long>(ref_seq_),
+      win_views_, nc, std::isfinite(evidence) ? evidence : 0.0, moved_rot_deg, moved_dir_deg, good,
+      median_parallax);
+  return true;
+}
+
+void Initializer::solve_candidate(const hal::Frame& frame, const SE3d& T_cur_ref,
+                                  const geometry::Pinhole& K, int slot) {
+  geometry::WindowBundleAdjuster& ba = ba_[static_cast<std::size_t>(slot)];
+  const geometry::TwoViewOptions& tv = opts_.two_view;
+  ba.reset(K, kChi2Gate2Dof);
+  // Points: the candidate's triangulation; the others (near the epipole, behind) at the
+  // median inverse depth.
+  scratch_.clear();
+  for (const std::int32_t j : win_sel_) {
+    const auto uj = static_cast<std::size_t>(j);
+    Eigen::Vector3d X;
+    double rho = -1.0;
+    if (geometry::triangulate_two_view(SE3d::Identity(), T_cur_ref, K.unproject(init_uv0_[uj]),
+                                       K.unproject(init_uv1_[uj]), X) &&
+        X.z() > 0.0) {
+      rho = 1.0 / X.z();
+      scratch_.push_back(rho);
+    }
+    const int level = ref_kps_[static_cast<std::size_t>(init_ref_idx_[uj])].level;
+    ba.add_point(init_uv0_[uj], rho, tv.sigma_px * std::pow(scale_factor_, level));
+  }
+  const double rho_median = scratch_.empty() ? 1.0 : upper_median(scratch_);
+  // Views: the frames in between, at the interpolated pose, then the current frame (fixed).
+  const Eigen::Quaterniond q_cur(T_cur_ref.linear());
+  const double span = static_cast<double>(frame.seq - ref_seq_);
+  for (int w = 0; w < win_views_; ++w) {
+    const double s = static_cast<double>(win_seq_[static_cast<std::size_t>(w)] - ref_seq_) / span;
+    SE3d T = SE3d::Identity();
+    T.linear() = Eigen::Quaterniond::Identity().slerp(s, q_cur).toRotationMatrix();
+    T.translation() = s * T_cur_ref.translation();
+    ba.add_view(T);
+  }
+  const int cur = ba.add_view(T_cur_ref);
+  ba.fix_view(cur);
+  const auto nk = static_cast<std::size_t>(max_keypoints_);
+  for (std::size_t p = 0; p < win_sel_.size(); ++p) {
+    const auto pi = static_cast<int>(p);
+    if (ba.inv_depth(pi) < 0.0) ba.set_inv_depth(pi, rho_median);
+    const auto uj = static_cast<std::size_t>(win_sel_[p]);
+    const auto ri = static_cast<std::size_t>(init_ref_idx_[uj]);
+    for (int w = 0; w < win_views_; ++w) {
+      const Eigen::Vector2f& uv = win_uv_[static_cast<std::size_t>(w) * nk + ri];
+      if (std::isfinite(uv.x())) ba.observe(w, pi, uv.cast<double>());
+    }
+    ba.observe(cur, pi, init_uv1_[uj]);
+  }
+  // Views first (on the candidate's points), then everything; then again without the
+  // observations the solution does not explain (wrong tracks).
+  ba.solve(kViewsFirstIterations, true);
+  ba.solve(opts_.window.iterations, false);
+  ba.drop_outliers(kChi2Gate2Dof);
+  ba.solve(opts_.window.iterations, false);
 }
 
 void Initializer::initialize_rgbd(const hal::Frame& frame, const KeypointGrid& features,

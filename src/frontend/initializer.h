@@ -11,6 +11,22 @@
 ///   the reference; one with too few matches, or one refused while the reference is older than
 ///   `max_reference_age_s` (`max_plane_hint_reference_age_s` once the reference holds plane
 ///   hints), becomes the new reference.
+///   When the two-view reconstruction refuses an essential model's motion as uncertain (low
+///   parallax: the translation direction is not sharp), the window decides
+///   (`tracking.init.window`). The initializer keeps up to `max_views` of the frames tracked
+///   since the reference, spread evenly, with the pixel where each reference keypoint was
+///   matched in each. The current frame is held at the candidate motion and the frames in
+///   between and the inverse depths of the points tracked through all of them are solved
+///   (geometry/window_ba.h; wrong tracks dropped at the chi2 gate). Then the current frame is
+///   released: if the whole window's solution moves it more than `max_moved_rotation_deg` /
+///   `max_moved_direction_deg`, the motion is not determined yet and the frame is refused.
+///   A start keeps the candidate's motion; its points are triangulated from every view that
+///   saw them, and a point must reproject within the chi2 gate in each.
+///   Ties (a wall's homography and its twin) are decided on the window only with
+///   `decide_ties`: each candidate is solved as above, and the one of least truncated cost
+///   wins when it beats every other by `min_evidence_sigmas` standard errors of the mean
+///   per-point difference. Off by default: when the camera moves along a line the twin
+///   explains the frames in between as well as the truth (docs/decisions/window-start.md).
 /// - RGB-D: a start is one keyframe, the frame (the world frame), with a point per keypoint
 ///   whose sensor depth is valid.
 /// With `pipeline.focal: auto`, a start waits until `tracking.focal.min_init_estimates`
@@ -24,6 +40,7 @@
 /// the tracker never takes the map's writer lock). Setup (reserve) allocates; spin_once may
 /// allocate (the two-view reconstruction does). Not thread-safe: the tracking thread's.
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -36,6 +53,7 @@
 #include "frontend/tracking_options.h"
 #include "geometry/camera_model.h"
 #include "geometry/two_view.h"
+#include "geometry/window_ba.h"
 #include "hal/camera.h"
 #include "map/keyframe_job.h"
 
@@ -43,19 +61,23 @@ namespace mer::frontend {
 
 /// Why a frame did not start the map.
 enum class InitRefusal : std::uint8_t {
-  kNone = 0,           ///< not refused: the frame started the map
-  kNoDepth,            ///< RGB-D: the frame has no depth image
-  kTooFewFeatures,     ///< fewer keypoints than `init.min_features`
-  kNoReference,        ///< there was no reference frame: this frame is the reference now
-  kTooFewMatches,      ///< fewer matches to the reference than `init.two_view.min_matches`
-  kReferenceTooOld,    ///< RGB-D, estimating the focal: the reference was too old to match
-  kFocalPending,       ///< fewer two-view focal estimates than `focal.min_init_estimates`
-  kTwoView,            ///< the two-view reconstruction refused (InitDecision::two_view says why)
-  kTooFewDepthPoints,  ///< RGB-D: fewer keypoints with valid depth than `init.rgbd_min_points`
+  kNone = 0,            ///< not refused: the frame started the map
+  kNoDepth,             ///< RGB-D: the frame has no depth image
+  kTooFewFeatures,      ///< fewer keypoints than `init.min_features`
+  kNoReference,         ///< there was no reference frame: this frame is the reference now
+  kTooFewMatches,       ///< fewer matches to the reference than `init.two_view.min_matches`
+  kReferenceTooOld,     ///< RGB-D, estimating the focal: the reference was too old to match
+  kFocalPending,        ///< fewer two-view focal estimates than `focal.min_init_estimates`
+  kTwoView,             ///< the two-view reconstruction refused (InitDecision::two_view says why)
+  kTooFewDepthPoints,   ///< RGB-D: fewer keypoints with valid depth than `init.rgbd_min_points`
+  kWindowAmbiguous,     ///< the window (decide_ties): another motion explains it nearly as well
+  kWindowUncertain,     ///< the window: released, the motion moved (not determined yet)
+  kWindowTooFewPoints,  ///< the window's solution triangulates too few points, or under too
+                        ///< little parallax
 };
 /// Number of InitRefusal values (counters indexed by it).
 inline constexpr std::size_t kInitRefusalCount =
-    static_cast<std::size_t>(InitRefusal::kTooFewDepthPoints) + 1;
+    static_cast<std::size_t>(InitRefusal::kWindowTooFewPoints) + 1;
 
 /// Short name of a refusal ("too_few_matches", ...; "two_view" for kTwoView).
 const char* to_string(InitRefusal r);
@@ -73,6 +95,8 @@ struct InitDecision {
   SE3d T_w_c = SE3d::Identity();  ///< and camera-to-world (RGB-D: both exactly the identity)
   int num_points = 0;             ///< points made
   int num_matches = 0;            ///< monocular: matches to the reference
+  int window_views = 0;           ///< monocular: frames in between that decided the start (0:
+                                  ///< the two-view reconstruction alone)
   double median_depth = 1.0;      ///< median depth of the points in the frame
   std::uint64_t ref_seq = 0;      ///< the world frame's sequence number (RGB-D: this frame)
 };
@@ -124,9 +148,23 @@ class Initializer {
   /// Adds a two-view focal estimate from the last matches to `focal` (d.K follows it).
   void focal_from_reference(int matches, FocalEstimator& focal, InitDecision& d);
   bool reference_too_old(std::int64_t t_ns) const;
+  /// Keeps the frame's matches in the window if its turn has come (every win_stride_ frames).
+  void remember_frame(const hal::Frame& frame, const KeypointGrid& features);
+  /// Decides a refused pair on the window; returns true when the frame starts the map.
+  bool decide_on_window(const hal::Frame& frame, std::span<const SE3d> candidates,
+                        const geometry::Pinhole& K, InitDecision& d);
+  /// Solves the window with the current frame held at candidate `T_cur_ref`, in ba_[slot].
+  void solve_candidate(const hal::Frame& frame, const SE3d& T_cur_ref, const geometry::Pinhole& K,
+                       int slot);
+  /// Writes the start of two keyframes (the reference and the frame) from the points of the
+  /// matches (`points_c0`, where `good`), scaled to unit median depth in the reference.
+  void make_start(const hal::Frame& frame, const KeypointGrid& features,
+                  std::span<const Eigen::Vector3d> points_c0, std::span<const std::uint8_t> good,
+                  const SE3d& T_cur_ref, int matches, FocalEstimator& focal, InitDecision& d);
 
   InitOptions opts_;
   double min_disparity_px_;  // tracking.focal.min_disparity_px
+  double scale_factor_;      // tracking.extractor.scale_factor: keypoint sigma per level
   std::uint64_t seed_;       // tracking.pnp.seed
   double rgbd_max_depth_step_;
   bool rgbd_;
@@ -148,6 +186,24 @@ class Initializer {
   std::vector<std::int32_t> init_ref_idx_;
   std::vector<std::int32_t> init_cur_idx_;
   std::vector<double> scratch_;
+  // The window: frames since the reference, every win_stride_-th one (slot k holds frame
+  // (k + 1) * win_stride_ after the reference), with the pixel of each reference keypoint
+  // (NaN: not matched).
+  int max_keypoints_ = 0;
+  int win_views_ = 0;
+  int win_stride_ = 1;
+  int frames_since_ref_ = 0;
+  std::vector<std::uint64_t> win_seq_;
+  std::vector<Eigen::Vector2f> win_uv_;       // max_views x max_keypoints_
+  std::vector<std::int32_t> win_consistent_;  // matches on an epipolar line of a candidate
+  std::vector<std::int32_t> win_sel_;         // matches (indices into init_*) in the adjustment
+  std::array<geometry::WindowBundleAdjuster, 2> ba_;  // the best candidate's and the next
+  std::vector<double> point_cost_;              // per candidate and adjusted point: truncated cost
+  std::vector<SE3d> win_T_;                     // the winner's views (camera from reference)
+  std::vector<Eigen::Vector3d> win_points_c0_;  // per match: the window's point
+  std::vector<std::uint8_t> win_good_;          // per match: a good point
+  std::vector<SE3d> tri_T_;                     // triangulation views
+  std::vector<Eigen::Vector3d> tri_x_;          // and their normalized rays
   // The last start: its keyframes' depths and points.
   map::SegmentStart start_;
 };

@@ -48,9 +48,61 @@ struct MatchOptions {
   }
 };
 
+/// Monocular start over a window of frames (frontend/initializer.h): when the two-view
+/// reconstruction of the reference and the current frame refuses an essential model's motion
+/// as uncertain, the frames tracked in between decide it (a bundle adjustment of the window,
+/// geometry/window_ba.h).
+struct InitWindowOptions {
+  bool enabled = true;                   ///< decide refused pairs on the window
+  bool decide_ties = false;              ///< also decide ambiguous pairs (ties) on the window
+  int max_views = 8;                     ///< frames kept between the reference and the current one
+  int min_views = 2;                     ///< frames in between needed to decide
+  int max_points = 300;                  ///< points in the candidates' bundle adjustments
+  int iterations = 20;                   ///< Levenberg-Marquardt iterations per solve
+  double min_evidence_sigmas = 4.0;      ///< how much better the winner must explain the window
+  double max_moved_rotation_deg = 0.5;   ///< released, the winner's rotation may move this far
+  double max_moved_direction_deg = 5.0;  ///< and its translation direction this far
+
+  template <class V>
+  void visit(V& v) {
+    v.field("enabled", enabled,
+            "decide with the frames tracked in between the pairs the two-view reconstruction "
+            "refuses as an uncertain essential-model motion (low parallax)");
+    v.field("decide_ties", decide_ties,
+            "also decide the pairs refused as ambiguous (two motion candidates, a wall's "
+            "homography and its twin) on the window (off: a tie waits for parallax; when the "
+            "camera moves along a line the twin explains the frames in between as well as the "
+            "truth, and a few wrong tracks then decide it)");
+    v.field("max_views", max_views,
+            "frames kept between the reference and the current frame (spread evenly: when "
+            "full, every other one is dropped)",
+            options::Range<int>{1, 64});
+    v.field("min_views", min_views, "frames in between needed to decide",
+            options::Range<int>{1, 64});
+    v.field("max_points", max_points,
+            "points (spread over the matches) in each candidate's bundle adjustment",
+            options::Range<int>{8, 100000});
+    v.field("iterations", iterations, "Levenberg-Marquardt iterations per solve",
+            options::Range<int>{1, 1000});
+    v.field(
+        "min_evidence_sigmas", min_evidence_sigmas,
+        "with decide_ties: the winning motion candidate's points must cost less than every other "
+        "candidate's by this many standard errors of the mean per-point difference (a "
+        "paired test over the window's points), or the window is ambiguous",
+        options::Range<double>{0.0, 1e6});
+    v.field("max_moved_rotation_deg", max_moved_rotation_deg,
+            "released from the candidate's motion, a solution of the whole window may turn "
+            "the current frame this far, or the motion is uncertain, deg",
+            options::Range<double>{0.0, 180.0});
+    v.field("max_moved_direction_deg", max_moved_direction_deg,
+            "and move its translation direction this far, deg", options::Range<double>{0.0, 180.0});
+  }
+};
+
 /// Monocular / RGB-D initialization.
 struct InitOptions {
   geometry::TwoViewOptions two_view;  ///< two-view reconstruction and its refusals
+  InitWindowOptions window;           ///< the window of frames that decides refused pairs
   double search_radius_px =
       100.0;               ///< window of the frame-to-frame search of the reference keypoints
   int max_hamming = 60;    ///< descriptor distance of an initialization match
@@ -65,6 +117,7 @@ struct InitOptions {
   template <class V>
   void visit(V& v) {
     v.section("two_view", two_view, "two-view reconstruction (monocular)");
+    v.section("window", window, "monocular start over a window of frames");
     v.field("search_radius_px", search_radius_px,
             "window of the frame-to-frame search of the reference keypoints, px",
             options::Range<double>{1.0, 4000.0});

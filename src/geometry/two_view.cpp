@@ -278,6 +278,15 @@ struct Motion {
                                                 ///< camera 0, z >= 0
 };
 
+/// Camera 1 from camera 0 with a unit translation.
+SE3d unit_motion(const Motion& m) {
+  SE3d T = SE3d::Identity();
+  T.linear() = m.R;
+  const double norm = m.t.norm();
+  T.translation() = norm > 0.0 ? Eigen::Vector3d(m.t / norm) : m.t;
+  return T;
+}
+
 Eigen::Vector3d facing_away(const Eigen::Vector3d& n) {
   return n.z() < 0.0 ? Eigen::Vector3d(-n) : n;
 }
@@ -978,6 +987,7 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
       if (planar && r.median_parallax_deg >= o.plane_hint_min_parallax_deg) {
         for (const std::size_t k : tied) r.plane_normals_c0.push_back(candidates[k].n);
       }
+      for (const std::size_t k : tied) r.candidate_motions.push_back(unit_motion(candidates[k]));
       return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
     }
     if (*winner != best) {
@@ -1034,6 +1044,7 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   if ((r.median_parallax_deg < o.confident_parallax_deg || from_plane_parallax) &&
       (r.model != TwoViewModel::kEssential ||
        r.translation_dir_sigma_deg > o.max_translation_dir_sigma_deg)) {
+    r.candidate_motions.push_back(unit_motion(candidates[best]));
     return refuse(std::move(r), TwoViewRefusal::kUncertainMotion);
   }
   if (final_check.good < o.min_triangulated) {
@@ -1072,6 +1083,8 @@ TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
        r.refusal == TwoViewRefusal::kTooFewTriangulated)) {
     TwoViewResult e = reconstruct_impl(uv0, uv1, K, o, true, plane_hints);
     if (e.ok) return e;
+    r.candidate_motions.insert(r.candidate_motions.end(), e.candidate_motions.begin(),
+                               e.candidate_motions.end());
   }
   return r;
 }

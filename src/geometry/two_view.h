@@ -187,6 +187,11 @@ struct TwoViewResult {
   /// reference, they break the tie: the true plane keeps its normal, the twin's normal turns
   /// with the direction of translation.
   std::vector<Eigen::Vector3d> plane_normals_c0;
+  /// Refused as ambiguous (the tied candidates, winner first) or as uncertain motion (the
+  /// winner): the motions T_c1_c0 with a unit translation, for a check on more views (the
+  /// initializer's window). An ambiguous homography that fell back to the essential model
+  /// lists the essential model's candidates after its own.
+  std::vector<SE3d> candidate_motions;
 };
 
 /// Monocular initialization from pixel correspondences uv0[i] <-> uv1[i] (undistorted

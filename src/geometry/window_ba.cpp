@@ -66,6 +66,7 @@ void WindowBundleAdjuster::reserve(int max_views, int max_points) {
   rho_.assign(np, 0.0);
   rho_saved_.assign(np, 0.0);
   f_.assign(np, Eigen::Vector3d::Zero());
+  inv_sigma_.assign(np, 1.0);
   obs_uv_.assign(nv * np, Eigen::Vector2d::Zero());
   obs_valid_.assign(nv * np, 0);
   h_cp_.assign(nv * np, Eigen::Matrix<double, 6, 1>::Zero());
@@ -81,20 +82,22 @@ void WindowBundleAdjuster::reserve(int max_views, int max_points) {
   cov_rhs_.setZero(n, kPoseDof);
 }
 
-void WindowBundleAdjuster::reset(const Pinhole& K, double sigma_px, double huber_chi2) {
+void WindowBundleAdjuster::reset(const Pinhole& K, double huber_chi2) {
   K_ = K;
-  inv_sigma_ = 1.0 / sigma_px;
   huber_k_ = std::sqrt(huber_chi2);
-  std::fill(obs_valid_.begin(), obs_valid_.end(), std::uint8_t{0});
+  std::fill(obs_valid_.begin(), obs_valid_.end(), kNone);
   num_views_ = 0;
   num_points_ = 0;
   scale_view_ = -1;
+  fixed_view_ = -1;
 }
 
-int WindowBundleAdjuster::add_point(const Eigen::Vector2d& uv_ref, double inv_depth) {
+int WindowBundleAdjuster::add_point(const Eigen::Vector2d& uv_ref, double inv_depth,
+                                    double sigma_px) {
   if (num_points_ >= max_points_) return -1;
   const auto i = static_cast<std::size_t>(num_points_);
   f_[i] = K_.unproject(uv_ref);
+  inv_sigma_[i] = 1.0 / sigma_px;
   rho_[i] = inv_depth;
   return num_points_++;
 }
@@ -114,7 +117,46 @@ void WindowBundleAdjuster::set_scale_view(int v) {
 
 void WindowBundleAdjuster::observe(int v, int i, const Eigen::Vector2d& uv) {
   obs_uv_[index(v, i)] = uv;
-  obs_valid_[index(v, i)] = 1;
+  obs_valid_[index(v, i)] = kActive;
+}
+
+int WindowBundleAdjuster::drop_outliers(double chi2_gate) {
+  int dropped = 0;
+  for (int v = 0; v < num_views_; ++v) {
+    for (int i = 0; i < num_points_; ++i) {
+      if (obs_valid_[index(v, i)] == kActive && chi2(v, i) > chi2_gate) {
+        obs_valid_[index(v, i)] = kDropped;
+        ++dropped;
+      }
+    }
+  }
+  return dropped;
+}
+
+double WindowBundleAdjuster::truncated_cost(double chi2_gate) const {
+  double c = 0.0;
+  for (int v = 0; v < num_views_; ++v) {
+    for (int i = 0; i < num_points_; ++i) {
+      if (obs_valid_[index(v, i)] != kNone) c += std::min(chi2(v, i), chi2_gate);
+    }
+  }
+  return c;
+}
+
+double WindowBundleAdjuster::point_truncated_cost(int i, double chi2_gate) const {
+  double c = 0.0;
+  for (int v = 0; v < num_views_; ++v) {
+    if (obs_valid_[index(v, i)] != kNone) c += std::min(chi2(v, i), chi2_gate);
+  }
+  return c;
+}
+
+int WindowBundleAdjuster::num_observations() const {
+  int n = 0;
+  for (int v = 0; v < num_views_; ++v) {
+    for (int i = 0; i < num_points_; ++i) n += obs_valid_[index(v, i)] != kNone ? 1 : 0;
+  }
+  return n;
 }
 
 double WindowBundleAdjuster::huber(double s) const {
@@ -124,12 +166,12 @@ double WindowBundleAdjuster::huber(double s) const {
 
 double WindowBundleAdjuster::chi2(int v, int i) const {
   const std::size_t o = index(v, i);
-  if (obs_valid_[o] == 0) return 0.0;
+  if (obs_valid_[o] == kNone) return 0.0;
+  const auto ui = static_cast<std::size_t>(i);
   const SE3d& T = T_[static_cast<std::size_t>(v)];
   Eigen::Vector2d r;
-  if (!window_ba_residual(K_, T.linear(), T.translation(), f_[static_cast<std::size_t>(i)],
-                          rho_[static_cast<std::size_t>(i)], obs_uv_[o], inv_sigma_, r, nullptr,
-                          nullptr)) {
+  if (!window_ba_residual(K_, T.linear(), T.translation(), f_[ui], rho_[ui], obs_uv_[o],
+                          inv_sigma_[ui], r, nullptr, nullptr)) {
     return kWindowBaBehindChi2;
   }
   return r.squaredNorm();
@@ -139,7 +181,7 @@ double WindowBundleAdjuster::cost() const {
   double c = 0.0;
   for (int v = 0; v < num_views_; ++v) {
     for (int i = 0; i < num_points_; ++i) {
-      if (obs_valid_[index(v, i)] != 0) c += huber(chi2(v, i));
+      if (obs_valid_[index(v, i)] == kActive) c += huber(chi2(v, i));
     }
   }
   return c;
@@ -159,10 +201,10 @@ double WindowBundleAdjuster::linearize() {
     for (int v = 0; v < num_views_; ++v) {
       const std::size_t o = index(v, i);
       h_cp_[o].setZero();
-      if (obs_valid_[o] == 0) continue;
+      if (obs_valid_[o] != kActive) continue;
       const SE3d& T = T_[static_cast<std::size_t>(v)];
       if (!window_ba_residual(K_, T.linear(), T.translation(), f_[ui], rho_[ui], obs_uv_[o],
-                              inv_sigma_, r, &Jc, &Jp)) {
+                              inv_sigma_[ui], r, &Jc, &Jp)) {
         c += huber(kWindowBaBehindChi2);
         continue;
       }
@@ -193,17 +235,21 @@ void WindowBundleAdjuster::reduce(double lambda, bool points_fixed) {
       const double h = h_pp_[ui] * (1.0 + lambda);
       for (int v1 = 0; v1 < num_views_; ++v1) {
         const std::size_t o1 = index(v1, i);
-        if (obs_valid_[o1] == 0) continue;
+        if (obs_valid_[o1] != kActive) continue;
         b_s_.segment<6>(kPoseDof * v1) -= h_cp_[o1] * (b_p_[ui] / h);
         for (int v2 = v1; v2 < num_views_; ++v2) {
           const std::size_t o2 = index(v2, i);
-          if (obs_valid_[o2] == 0) continue;
+          if (obs_valid_[o2] != kActive) continue;
           const Eigen::Matrix<double, 6, 6> blk = h_cp_[o1] * h_cp_[o2].transpose() / h;
           S_.block<6, 6>(kPoseDof * v1, kPoseDof * v2) -= blk;
           if (v2 != v1) S_.block<6, 6>(kPoseDof * v2, kPoseDof * v1) -= blk.transpose();
         }
       }
     }
+  }
+  if (fixed_view_ >= 0) {
+    S_.block<6, 6>(kPoseDof * fixed_view_, kPoseDof * fixed_view_).diagonal().array() +=
+        kRadialLock;
   }
   if (scale_view_ >= 0) {
     const Eigen::Vector3d u = T_[static_cast<std::size_t>(scale_view_)].translation().normalized();
@@ -239,7 +285,7 @@ WindowBaSummary WindowBundleAdjuster::solve(int iterations, bool points_fixed) {
         double g = b_p_[ui];
         for (int v = 0; v < num_views_; ++v) {
           const std::size_t o = index(v, i);
-          if (obs_valid_[o] != 0) g += h_cp_[o].dot(dc_.segment<6>(kPoseDof * v));
+          if (obs_valid_[o] == kActive) g += h_cp_[o].dot(dc_.segment<6>(kPoseDof * v));
         }
         rho_[ui] -= g / (h_pp_[ui] * (1.0 + lambda));
       }
@@ -260,7 +306,7 @@ WindowBaSummary WindowBundleAdjuster::solve(int iterations, bool points_fixed) {
   out.final_cost = c;
   for (int v = 0; v < num_views_; ++v) {
     for (int i = 0; i < num_points_; ++i) {
-      if (obs_valid_[index(v, i)] == 0) continue;
+      if (obs_valid_[index(v, i)] != kActive) continue;
       if (chi2(v, i) >= kWindowBaBehindChi2) {
         ++out.behind;
       } else {

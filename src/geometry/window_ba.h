@@ -72,17 +72,32 @@ class WindowBundleAdjuster {
   void reserve(int max_views, int max_points);
 
   /// Starts a new problem (no views, no points).
-  void reset(const Pinhole& K, double sigma_px, double huber_chi2);
+  void reset(const Pinhole& K, double huber_chi2);
 
   /// Adds a point on the reference ray through `uv_ref` at inverse depth `inv_depth` (in the
-  /// units of the scale view's unit baseline). Returns its index, or -1 when full.
-  int add_point(const Eigen::Vector2d& uv_ref, double inv_depth);
+  /// units of the scale view's unit baseline), seen with pixel noise `sigma_px` in every view.
+  /// Returns its index, or -1 when full.
+  int add_point(const Eigen::Vector2d& uv_ref, double inv_depth, double sigma_px);
+  /// Sets point `i`'s inverse depth.
+  void set_inv_depth(int i, double inv_depth) { rho_[static_cast<std::size_t>(i)] = inv_depth; }
   /// Adds a view at `T_c_ref` (camera from reference). Returns its index, or -1 when full.
   int add_view(const SE3d& T_c_ref);
   /// Makes view `v` the scale view: its translation is scaled to unit length and kept there.
   void set_scale_view(int v);
+  /// Holds view `v` where it is (a hypothesis to test; it also fixes the scale).
+  void fix_view(int v) { fixed_view_ = v; }
   /// Point `i` is seen at pixel `uv` in view `v`.
   void observe(int v, int i, const Eigen::Vector2d& uv);
+  /// Observations whose squared normalized error exceeds `chi2_gate` no longer count in the
+  /// solve (they still count in truncated_cost). Returns how many were dropped.
+  int drop_outliers(double chi2_gate);
+  /// Sum over every observation, dropped ones included, of min(squared normalized error,
+  /// `chi2_gate`): the score (as in MSAC) by which solutions of one window compare.
+  double truncated_cost(double chi2_gate) const;
+  /// truncated_cost of point i's observations alone.
+  double point_truncated_cost(int i, double chi2_gate) const;
+  /// Observations (dropped ones included).
+  int num_observations() const;
 
   /// Up to `iterations` Levenberg-Marquardt iterations; with `points_fixed` only the views
   /// move (each on its own).
@@ -97,7 +112,7 @@ class WindowBundleAdjuster {
   double inv_depth(int i) const { return rho_[static_cast<std::size_t>(i)]; }
   /// Reference ray (x, y, 1) of point i.
   const Eigen::Vector3d& ray(int i) const { return f_[static_cast<std::size_t>(i)]; }
-  bool observed(int v, int i) const { return obs_valid_[index(v, i)] != 0; }
+  bool observed(int v, int i) const { return obs_valid_[index(v, i)] == kActive; }
   /// Squared normalized error of observation (v, i) at the current estimate
   /// (kWindowBaBehindChi2 behind the view; 0 when not observed).
   double chi2(int v, int i) const;
@@ -109,6 +124,9 @@ class WindowBundleAdjuster {
     return static_cast<std::size_t>(v) * static_cast<std::size_t>(max_points_) +
            static_cast<std::size_t>(i);
   }
+  static constexpr std::uint8_t kNone = 0;     // not observed
+  static constexpr std::uint8_t kActive = 1;   // observed, in the solve
+  static constexpr std::uint8_t kDropped = 2;  // observed, dropped as an outlier
   double huber(double s) const;
   /// Linearizes at the current estimate into h_cc_, b_c_, h_cp_, h_pp_, b_p_; returns the cost.
   double linearize();
@@ -116,21 +134,22 @@ class WindowBundleAdjuster {
   void reduce(double lambda, bool points_fixed);
 
   Pinhole K_;
-  double inv_sigma_ = 1.0;
   double huber_k_ = 1.0;  // sqrt(huber_chi2)
   int max_views_ = 0;
   int max_points_ = 0;
   int num_views_ = 0;
   int num_points_ = 0;
   int scale_view_ = -1;
+  int fixed_view_ = -1;
 
   std::vector<SE3d> T_;
   std::vector<SE3d> saved_T_;
   std::vector<double> rho_;
   std::vector<double> rho_saved_;
   std::vector<Eigen::Vector3d> f_;
+  std::vector<double> inv_sigma_;        // per point, 1/px
   std::vector<Eigen::Vector2d> obs_uv_;  // view-major, max_points_ per view
-  std::vector<std::uint8_t> obs_valid_;
+  std::vector<std::uint8_t> obs_valid_;  // kNone, kActive or kDropped
   // Linearization.
   Eigen::MatrixXd h_cc_;  // 6 max_views square
   Eigen::VectorXd b_c_;

@@ -55,7 +55,7 @@ void build(Rig& rig, double noise_px, bool perturb_views, bool perturb_points, s
   std::normal_distribution<double> n(0.0, 1.0);
   const Pinhole K = camera();
   rig.ba.reserve(kViews, static_cast<int>(rig.pts.size()));
-  rig.ba.reset(K, 1.0, 5.991);
+  rig.ba.reset(K, 5.991);
   rig.truth.clear();
   for (int k = 0; k < kViews; ++k) rig.truth.push_back(true_view(k));
   rig.scale = 1.0 / rig.truth.back().translation().norm();
@@ -63,7 +63,7 @@ void build(Rig& rig, double noise_px, bool perturb_views, bool perturb_points, s
   for (const Eigen::Vector3d& X : rig.pts) {
     const Eigen::Vector2d uv = K.project(X);
     const double rho = perturb_points ? 1.0 / (2.2 * rig.scale) : 1.0 / (X.z() * rig.scale);
-    rig.ba.add_point(uv, rho);
+    rig.ba.add_point(uv, rho, 1.0);
   }
   for (int k = 0; k < kViews; ++k) {
     SE3d T = rig.truth[static_cast<std::size_t>(k)];
@@ -192,8 +192,8 @@ TEST(WindowBa, SigmaOfTheTranslationDirectionMatchesItsSpreadOverNoiseDraws) {
 TEST(WindowBa, APointBehindAViewCostsTheBehindPenalty) {
   WindowBundleAdjuster ba;
   ba.reserve(1, 1);
-  ba.reset(camera(), 1.0, 5.991);
-  ba.add_point({320.0, 240.0}, 1.0);
+  ba.reset(camera(), 5.991);
+  ba.add_point({320.0, 240.0}, 1.0, 1.0);
   SE3d T = SE3d::Identity();
   T.translation() = Eigen::Vector3d(0.0, 0.0, -3.0);  // the point at z = 1 is behind
   ba.add_view(T);
