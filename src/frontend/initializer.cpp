@@ -155,7 +155,14 @@ InitDecision Initializer::spin_once(const hal::Frame& frame, const KeypointGrid&
   return d;
 }
 
-void Initializer::set_reference(const hal::Frame& frame, const KeypointGrid& features) {
+void Initializer::set_reference(const hal::Frame& frame, const KeypointGrid& features,
+                                const Eigen::Matrix3d* R_c_w) {
+  if (R_c_w != nullptr) {
+    ref_R_ref_w_ = *R_c_w;
+  } else {
+    ref_R_ref_w_.setIdentity();
+    ++chain_;
+  }
   const std::span<const features::Keypoint> kps = features.keypoints();
   const std::span<const features::Descriptor> descs = features.descriptors();
   ref_kps_.assign(kps.begin(), kps.end());
@@ -283,8 +290,13 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
       make_start(frame, features, win_points_c0_, win_good_, d.T_c_w, m, focal, d);
       return;
     }
+    if (tv.refusal == geometry::TwoViewRefusal::kPureRotation) {
+      d.has_orientation = true;
+      d.R_c_w = tv.rotation_c1_c0 * ref_R_ref_w_;
+      d.orientation_chain = chain_;
+    }
     if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns)) {
-      set_reference(frame, features);
+      set_reference(frame, features, d.has_orientation ? &d.R_c_w : nullptr);
     } else {
       remember_frame(frame, features);
     }

@@ -27,6 +27,12 @@
 ///   wins when it beats every other by `min_evidence_sigmas` standard errors of the mean
 ///   per-point difference. Off by default: when the camera moves along a line the twin
 ///   explains the frames in between as well as the truth (docs/decisions/window-start.md).
+/// - Orientation before a map (monocular): a frame the two-view reconstruction refuses as a
+///   pure rotation of the reference has a known orientation, the rotation fitted to the
+///   matches' bearings. References chain: a frame of known orientation that becomes the next
+///   reference keeps its orientation, so that the orientations of a chain share one world
+///   (the chain's first reference camera). A reference set without a known orientation starts
+///   a new chain.
 /// - RGB-D: a start is one keyframe, the frame (the world frame), with a point per keypoint
 ///   whose sensor depth is valid.
 /// With `pipeline.focal: auto`, a start waits until `tracking.focal.min_init_estimates`
@@ -97,8 +103,14 @@ struct InitDecision {
   int num_matches = 0;            ///< monocular: matches to the reference
   int window_views = 0;           ///< monocular: frames in between that decided the start (0:
                                   ///< the two-view reconstruction alone)
-  double median_depth = 1.0;      ///< median depth of the points in the frame
-  std::uint64_t ref_seq = 0;      ///< the world frame's sequence number (RGB-D: this frame)
+  // Not started, monocular: the orientation of a rotation-only motion.
+  bool has_orientation = false;  ///< the frame was refused as a pure rotation of a reference
+                                 ///< whose orientation is known: R_c_w below is valid
+  Eigen::Matrix3d R_c_w = Eigen::Matrix3d::Identity();  ///< camera from the chain's world
+  std::uint32_t orientation_chain = 0;  ///< the chain: a run of references, each a frame of
+                                        ///< known orientation, whose world is the first one's
+  double median_depth = 1.0;            ///< median depth of the points in the frame
+  std::uint64_t ref_seq = 0;            ///< the world frame's sequence number (RGB-D: this frame)
 };
 
 /// Name of a decision's refusal for logs and summary.json `last_init_refusal`: for kTwoView the
@@ -136,13 +148,18 @@ class Initializer {
   bool has_reference() const { return ref_valid_; }
   /// Sequence number of the reference frame (valid with has_reference()).
   std::uint64_t reference_seq() const { return ref_seq_; }
+  /// Orientation chain of the reference frame (InitDecision::orientation_chain).
+  std::uint32_t orientation_chain() const { return chain_; }
 
  private:
   void initialize_mono(const hal::Frame& frame, const KeypointGrid& features, FocalEstimator& focal,
                        InitDecision& d);
   void initialize_rgbd(const hal::Frame& frame, const KeypointGrid& features, FocalEstimator& focal,
                        InitDecision& d);
-  void set_reference(const hal::Frame& frame, const KeypointGrid& features);
+  /// Makes the frame the reference; with `R_c_w` (its orientation in the current chain) the
+  /// chain goes on, without it a new chain starts at the frame.
+  void set_reference(const hal::Frame& frame, const KeypointGrid& features,
+                     const Eigen::Matrix3d* R_c_w = nullptr);
   /// Matches the reference's keypoints in `features` (init_* and ref_prev_); returns the count.
   int match_reference(const KeypointGrid& features);
   /// Adds a two-view focal estimate from the last matches to `focal` (d.K follows it).
@@ -173,6 +190,8 @@ class Initializer {
   bool ref_valid_ = false;
   std::uint64_t ref_seq_ = 0;
   std::int64_t ref_t_ns_ = 0;
+  Eigen::Matrix3d ref_R_ref_w_ = Eigen::Matrix3d::Identity();  // reference in its chain's world
+  std::uint32_t chain_ = 0;                                    // the reference's chain
   std::vector<Eigen::Vector3d> plane_hints_;  // plane normals of the reference's first planar tie
   std::vector<features::Keypoint> ref_kps_;
   std::vector<features::Descriptor> ref_descs_;

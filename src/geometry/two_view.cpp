@@ -42,6 +42,8 @@ constexpr int kRefitPasses = 3;
 /// usable baseline (a translation large enough to initialize moves most points off the
 /// rotation-only prediction by more than the 2-dof chi2 gate).
 constexpr double kPureRotationInlierFraction = 0.7;
+// Refits of a pure rotation on the correspondences it explains.
+constexpr int kRotationRefineRounds = 3;
 /// Homography singular values closer than this (relative) count as equal: the homography is a
 /// rotation (no translation) or degenerate, and its decomposition is undefined.
 constexpr double kMinSingularGap = 1e-6;
@@ -608,7 +610,7 @@ double median_of(std::vector<double> v) {
 int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
                           std::span<const Eigen::Vector2d> uv1,
                           std::span<const std::uint8_t> inliers_h, const Pinhole& K,
-                          double sigma_px) {
+                          double sigma_px, Eigen::Matrix3d& R_out) {
   Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
   for (std::size_t i = 0; i < uv0.size(); ++i) {
     if (inliers_h[i]) M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
@@ -616,6 +618,7 @@ int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
   const Eigen::Matrix3d R = svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
+  R_out = R;
   const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
   int count = 0;
   for (std::size_t i = 0; i < uv0.size(); ++i) {
@@ -624,6 +627,29 @@ int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
     if ((K.project(p) - uv1[i]).squaredNorm() * inv_var <= kChi2TwoDof95) ++count;
   }
   return count;
+}
+
+/// Refits a rotation-only model to every correspondence it explains (chi2 gate on the pixel
+/// error), from `R`, `rounds` times (as LO-RANSAC's local optimization): the homography's
+/// inliers it started from can hold a few wrong matches of a repeated texture.
+void refine_rotation(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen::Vector2d> uv1,
+                     const Pinhole& K, double sigma_px, int rounds, Eigen::Matrix3d& R) {
+  const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
+  for (int round = 0; round < rounds; ++round) {
+    Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+    int count = 0;
+    for (std::size_t i = 0; i < uv0.size(); ++i) {
+      const Eigen::Vector3d p = R * K.unproject(uv0[i]);
+      if (!(p.z() > 0.0)) continue;
+      if ((K.project(p) - uv1[i]).squaredNorm() * inv_var > kChi2TwoDof95) continue;
+      M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
+      ++count;
+    }
+    if (count < kHomographySampleSize) return;
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    const Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
+    R = svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
+  }
 }
 
 /// A refused result: no map (the diagnostics filled so far are kept).
@@ -899,10 +925,15 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
 
   // 3. Pure rotation: the image moved, but a rotation alone explains it. Then F is not
   //    unique (any F = [e]x H fits) and any "translation" is noise.
-  if (fit.num_inliers_h >= kHomographySampleSize &&
-      rotation_only_inliers(uv0, uv1, fit.inliers_h, K, o.sigma_px) >=
-          kPureRotationInlierFraction * best_inliers) {
-    return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+  if (fit.num_inliers_h >= kHomographySampleSize) {
+    Eigen::Matrix3d R = Eigen::Matrix3d::Identity();
+    const int n_rot = rotation_only_inliers(uv0, uv1, fit.inliers_h, K, o.sigma_px, R);
+    if (n_rot >= kPureRotationInlierFraction * best_inliers) {
+      refine_rotation(uv0, uv1, K, o.sigma_px, kRotationRefineRounds, R);
+      r.rotation_c1_c0 = R;
+      r.rotation_inliers = n_rot;
+      return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+    }
   }
 
   // 4. Model selection and motion candidates.

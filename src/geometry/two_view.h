@@ -192,6 +192,11 @@ struct TwoViewResult {
   /// initializer's window). An ambiguous homography that fell back to the essential model
   /// lists the essential model's candidates after its own.
   std::vector<SE3d> candidate_motions;
+  /// Refused as pure rotation: the rotation (camera 1 from camera 0, fitted to the
+  /// homography's inliers on their bearings) that explains the image motion, and how many
+  /// correspondences it explains.
+  Eigen::Matrix3d rotation_c1_c0 = Eigen::Matrix3d::Identity();
+  int rotation_inliers = 0;
 };
 
 /// Monocular initialization from pixel correspondences uv0[i] <-> uv1[i] (undistorted

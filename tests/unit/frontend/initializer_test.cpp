@@ -3,6 +3,7 @@
 // one, and an RGB-D frame with depth starts at once.
 #include "frontend/initializer.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -252,6 +253,55 @@ TEST(Initializer, WindowSettlesAnUncertainMotionEarlierThanTwoViews) {
     EXPECT_LT(dir_err, 2.0);
   }
   EXPECT_LT(start[1], start[0]);
+}
+
+// Turning on the spot (room_rotation's yaw sweeps of +-40 deg and pitch sweeps of +-15 deg,
+// without its hand translation), the pairs are refused as pure rotations: no metric map, but
+// each such frame has its orientation, in the world of its chain of references, within a
+// fraction of a degree.
+TEST(Initializer, PureRotationGivesOrientationAndNoMap) {
+  hal::SyntheticOptions room;
+  room.num_boxes = 10;
+  room.sweep_yaw_deg = 40.0;
+  room.sweep_pitch_deg = 15.0;
+  room.sweep_period_s = 6.0;
+  room.sweep_translation_m = 0.0;
+  room.texture = "procedural";
+  InitRig rig(SensorMode::kMono, "room_rotation", room);
+  const auto pose = [&](int i) { return rig.cam->sample_at(i / room.fps).T_w_c; };
+  constexpr int kFrames = 150;
+  std::uint32_t chain = rig.init->orientation_chain();
+  int chain_world = -1;  // frame whose camera is the current chain's world
+  int chains = 0;
+  int oriented = 0;
+  double worst_deg = 0.0;
+  double sum_sq = 0.0;
+  for (int i = 0; i < kFrames; ++i) {
+    rig.render(static_cast<std::uint64_t>(i), pose(i), static_cast<std::uint64_t>(i));
+    const InitDecision d = rig.decide();
+    ASSERT_FALSE(d.started) << "frame " << i << ": a metric map from a rotation";
+    if (d.has_orientation) {
+      ASSERT_EQ(d.orientation_chain, chain);
+      ASSERT_GE(chain_world, 0);
+      const Eigen::Matrix3d R_c_world_gt =
+          pose(i).linear().transpose() * pose(chain_world).linear();
+      const double err = Eigen::AngleAxisd(d.R_c_w * R_c_world_gt.transpose()).angle() * kRadToDeg;
+      worst_deg = std::max(worst_deg, err);
+      sum_sq += err * err;
+      ++oriented;
+    }
+    if (rig.init->orientation_chain() != chain || chain_world < 0) {
+      ++chains;
+      chain = rig.init->orientation_chain();
+      chain_world = static_cast<int>(rig.init->reference_seq());
+    }
+  }
+  std::printf(
+      "pure rotation: %d of %d frames with an orientation in %d chain(s), RMS error %.3f "
+      "deg, worst %.3f deg\n",
+      oriented, kFrames, chains, std::sqrt(sum_sq / std::max(oriented, 1)), worst_deg);
+  EXPECT_GE(oriented, kFrames / 2);
+  EXPECT_LT(worst_deg, 0.5);
 }
 
 // room_orbit's first second faces one wall: every pair is a planar tie. The camera moves
