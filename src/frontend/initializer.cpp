@@ -396,7 +396,8 @@ void Initializer::remember_frame(const hal::Frame& frame, const KeypointGrid& fe
   const auto slot = static_cast<std::size_t>(win_views_);
   win_seq_[slot] = frame.seq;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  for (std::size_t i = 0; i < ref_kps_.size(); ++i) {
+  const std::size_t nref = std::min(ref_kps_.size(), nk);  // the grid holds at most nk
+  for (std::size_t i = 0; i < nref; ++i) {
     const int k = ref_match_[i];
     win_uv_[slot * nk + i] = k == kNoMatch ? Eigen::Vector2f(nan, nan)
                                            : Eigen::Vector2f(kps[static_cast<std::size_t>(k)].x,
