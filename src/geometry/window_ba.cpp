@@ -75,10 +75,11 @@ void WindowBundleAdjuster::reserve(int max_views, int max_points) {
   const int n = kPoseDof * max_views_;
   h_cc_.setZero(n, n);
   b_c_.setZero(n);
-  S_.setZero(n, n);
   b_s_.setZero(n);
   dc_.setZero(n);
-  ldlt_ = Eigen::LDLT<Eigen::MatrixXd>(n);
+  // Sizes the factorization's storage (solves then reuse it).
+  S_.setIdentity(n, n);
+  ldlt_.compute(S_);
   cov_rhs_.setZero(n, kPoseDof);
 }
 
