@@ -605,8 +605,23 @@ double median_of(std::vector<double> v) {
   return upper_median(v);
 }
 
+/// The rotation nearest to M = sum of b1 b0^T over bearing pairs (orthogonal Procrustes).
+Eigen::Matrix3d procrustes_rotation(const Eigen::Matrix3d& M) {
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
+  return svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
+}
+
+/// Whether the rotation-only model x1 ~ K R K^-1 x0 maps uv0 onto uv1 within the chi2 gate
+/// (`inv_var`: 1 / the variance of a two-image residual).
+bool explained_by_rotation(const Eigen::Matrix3d& R, const Pinhole& K, const Eigen::Vector2d& uv0,
+                           const Eigen::Vector2d& uv1, double inv_var) {
+  const Eigen::Vector3d p = R * K.unproject(uv0);
+  return p.z() > 0.0 && (K.project(p) - uv1).squaredNorm() * inv_var <= kChi2TwoDof95;
+}
+
 /// Inliers of the best rotation-only model x1 ~ K R K^-1 x0, fitted (orthogonal Procrustes
-/// on bearing vectors) to the homography inliers.
+/// on bearing vectors) to the homography inliers; the rotation goes to `R_out`.
 int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
                           std::span<const Eigen::Vector2d> uv1,
                           std::span<const std::uint8_t> inliers_h, const Pinhole& K,
@@ -615,16 +630,11 @@ int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
   for (std::size_t i = 0; i < uv0.size(); ++i) {
     if (inliers_h[i]) M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
   }
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
-  const Eigen::Matrix3d R = svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
-  R_out = R;
+  R_out = procrustes_rotation(M);
   const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
   int count = 0;
   for (std::size_t i = 0; i < uv0.size(); ++i) {
-    const Eigen::Vector3d p = R * K.unproject(uv0[i]);
-    if (!(p.z() > 0.0)) continue;
-    if ((K.project(p) - uv1[i]).squaredNorm() * inv_var <= kChi2TwoDof95) ++count;
+    if (explained_by_rotation(R_out, K, uv0[i], uv1[i], inv_var)) ++count;
   }
   return count;
 }
@@ -639,16 +649,12 @@ void refine_rotation(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen
     Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
     int count = 0;
     for (std::size_t i = 0; i < uv0.size(); ++i) {
-      const Eigen::Vector3d p = R * K.unproject(uv0[i]);
-      if (!(p.z() > 0.0)) continue;
-      if ((K.project(p) - uv1[i]).squaredNorm() * inv_var > kChi2TwoDof95) continue;
+      if (!explained_by_rotation(R, K, uv0[i], uv1[i], inv_var)) continue;
       M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
       ++count;
     }
     if (count < kHomographySampleSize) return;
-    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    const Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
-    R = svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
+    R = procrustes_rotation(M);
   }
 }
 
