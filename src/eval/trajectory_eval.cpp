@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 
 namespace mer::eval {
 
@@ -16,6 +17,7 @@ std::optional<Alignment> parse_alignment(const std::string& s) {
   if (s == "none") return Alignment::kNone;
   if (s == "se3") return Alignment::kSe3;
   if (s == "sim3") return Alignment::kSim3;
+  if (s == "rotation") return Alignment::kRotation;
   return std::nullopt;
 }
 
@@ -27,6 +29,8 @@ const char* alignment_name(Alignment a) {
       return "se3";
     case Alignment::kSim3:
       return "sim3";
+    case Alignment::kRotation:
+      return "rotation";
   }
   return "?";
 }
@@ -89,7 +93,10 @@ SE3d Sim3::apply(const SE3d& T) const {
 Sim3 align_positions(const std::vector<Eigen::Vector3d>& src,
                      const std::vector<Eigen::Vector3d>& dst, Alignment alignment) {
   Sim3 s;
-  if (alignment == Alignment::kNone || src.size() < 3 || src.size() != dst.size()) return s;
+  if (alignment == Alignment::kNone || alignment == Alignment::kRotation || src.size() < 3 ||
+      src.size() != dst.size()) {
+    return s;
+  }
   Eigen::Matrix3Xd a(3, static_cast<Eigen::Index>(src.size()));
   Eigen::Matrix3Xd b(3, static_cast<Eigen::Index>(dst.size()));
   for (std::size_t i = 0; i < src.size(); ++i) {
@@ -107,9 +114,11 @@ Sim3 align_positions(const std::vector<Eigen::Vector3d>& src,
 
 namespace {
 
+// Angle of a rotation matrix, accurate near zero too (acos of the trace loses half the digits
+// there: 1e-16 of rounding reads as 1e-8 rad).
 double rotation_angle(const Eigen::Matrix3d& R) {
-  const double c = std::clamp((R.trace() - 1.0) * 0.5, -1.0, 1.0);
-  return std::acos(c);
+  const Eigen::Vector3d axis_sin(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1));
+  return std::atan2(0.5 * axis_sin.norm(), 0.5 * (R.trace() - 1.0));
 }
 
 void compute_rpe(const std::vector<SE3d>& G, const std::vector<SE3d>& P, const RpeOptions& opt,
@@ -153,6 +162,19 @@ void compute_rpe(const std::vector<SE3d>& G, const std::vector<SE3d>& P, const R
 
 }  // namespace
 
+Eigen::Matrix3d align_orientations(const hal::Trajectory& gt, const hal::Trajectory& est,
+                                   const std::vector<PosePair>& pairs) {
+  if (pairs.empty()) return Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  for (const PosePair& p : pairs) {
+    M += gt.poses[p.gt].T_w_c.linear() * est.poses[p.est].T_w_c.linear().transpose();
+  }
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
+  return svd.matrixU() * D * svd.matrixV().transpose();
+}
+
 EvalResult evaluate(const hal::Trajectory& gt, const hal::Trajectory& est,
                     const std::vector<PosePair>& pairs, Alignment alignment,
                     const RpeOptions& rpe) {
@@ -168,7 +190,8 @@ EvalResult evaluate(const hal::Trajectory& gt, const hal::Trajectory& est,
     src.push_back(est.poses[p.est].T_w_c.translation());
     dst.push_back(gt.poses[p.gt].T_w_c.translation());
   }
-  const Sim3 s = align_positions(src, dst, alignment);
+  Sim3 s = align_positions(src, dst, alignment);
+  if (alignment == Alignment::kRotation) s.R = align_orientations(gt, est, pairs);
   r.scale = s.scale;
 
   std::vector<double> err(pairs.size());
@@ -197,6 +220,16 @@ EvalResult evaluate(const hal::Trajectory& gt, const hal::Trajectory& est,
     P.push_back(s.apply(est.poses[p.est].T_w_c));
   }
   compute_rpe(G, P, rpe, r);
+
+  double sq_rot = 0.0;
+  for (std::size_t i = 0; i < pairs.size(); ++i) {
+    const double a = rotation_angle(G[i].linear().transpose() * P[i].linear());
+    sq_rot += a * a;
+    r.are_max_deg = std::max(r.are_max_deg, a);
+  }
+  constexpr double kDeg = 180.0 / std::numbers::pi;
+  r.are_rmse_deg = kDeg * std::sqrt(sq_rot / n);
+  r.are_max_deg *= kDeg;
   return r;
 }
 
@@ -219,7 +252,9 @@ std::string to_json(const EvalResult& r) {
     << ", \"ate_mean_m\": " << num(r.ate_mean_m) << ", \"ate_median_m\": " << num(r.ate_median_m)
     << ", \"ate_max_m\": " << num(r.ate_max_m)
     << ", \"rpe_trans_pct\": " << (rpe ? num(r.rpe_trans_pct) : "null")
-    << ", \"rpe_rot_deg_per_m\": " << (rpe ? num(r.rpe_rot_deg_per_m) : "null") << "}";
+    << ", \"rpe_rot_deg_per_m\": " << (rpe ? num(r.rpe_rot_deg_per_m) : "null")
+    << ", \"are_rmse_deg\": " << num(r.are_rmse_deg) << ", \"are_max_deg\": " << num(r.are_max_deg)
+    << "}";
   return o.str();
 }
 
@@ -231,9 +266,10 @@ std::string to_text(const EvalResult& r) {
                 "ATE rmse:   %.7f m\n"
                 "ATE mean:   %.7f m\n"
                 "ATE median: %.7f m\n"
-                "ATE max:    %.7f m\n",
+                "ATE max:    %.7f m\n"
+                "ARE rmse:   %.4f deg (max %.4f)\n",
                 r.pairs, alignment_name(r.alignment), r.scale, r.ate_rmse_m, r.ate_mean_m,
-                r.ate_median_m, r.ate_max_m);
+                r.ate_median_m, r.ate_max_m, r.are_rmse_deg, r.are_max_deg);
   std::string s = buf;
   if (r.rpe_segments > 0) {
     std::snprintf(buf, sizeof(buf), "RPE trans:  %.4f %% (%zu segments)\nRPE rot:    %.6f deg/m\n",

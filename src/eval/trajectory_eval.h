@@ -21,9 +21,12 @@ enum class Alignment {
   kNone,  ///< no alignment
   kSe3,   ///< rotation + translation (Umeyama without scale)
   kSim3,  ///< rotation + translation + scale (Umeyama with scale)
+  /// rotation only, fitted to the orientations (positions unused): for estimates that know
+  /// their orientation and not their position (mer_slam's orientation.txt)
+  kRotation,
 };
 
-/// Parses "none", "se3" or "sim3"; nullopt otherwise.
+/// Parses "none", "se3", "sim3" or "rotation"; nullopt otherwise.
 std::optional<Alignment> parse_alignment(const std::string& s);
 /// The name parse_alignment accepts for `a`.
 const char* alignment_name(Alignment a);
@@ -84,7 +87,15 @@ struct EvalResult {
   std::size_t rpe_segments = 0;           ///< segments the RPE averages over (0: none fit)
   double rpe_trans_pct = 0.0;             ///< mean translational RPE, % of segment length
   double rpe_rot_deg_per_m = 0.0;         ///< mean rotational RPE, degrees per metre of segment
+  double are_rmse_deg = 0.0;  ///< absolute rotation error after the alignment, RMS, degrees
+  double are_max_deg = 0.0;   ///< and its maximum
 };
+
+/// The rotation R that best maps the estimated orientations onto the true ones,
+/// R_gt_i ~ R R_est_i (chordal least squares: the SVD projection of sum R_gt_i R_est_i^T onto
+/// SO(3)). Identity when `pairs` is empty.
+Eigen::Matrix3d align_orientations(const hal::Trajectory& gt, const hal::Trajectory& est,
+                                   const std::vector<PosePair>& pairs);
 
 /// Evaluates `est` against `gt` over the associated `pairs` (must not be empty).
 ///
@@ -98,13 +109,18 @@ struct EvalResult {
 /// rotational error angle(E) / L, with L the ground-truth path length of the segment
 /// (KITTI devkit style). Both are averaged over the segments, translational reported in %,
 /// rotational in deg/m. No segment fits: rpe_segments = 0 and both are 0.
+///
+/// ARE: the angle of R_gt_i^T (R R_est_i) per pair, R the alignment's rotation, as RMS and
+/// max. With Alignment::kRotation, R comes from the orientations (align_orientations), the
+/// positions are only rotated (scale 1, no translation), and the ATE and RPE figures compare
+/// them as they are (an estimate of orientations alone has no positions to score).
 EvalResult evaluate(const hal::Trajectory& gt, const hal::Trajectory& est,
                     const std::vector<PosePair>& pairs, Alignment alignment,
                     const RpeOptions& rpe = {});
 
 /// The result as one JSON object (keys pairs, align, scale, ate_rmse_m, ate_mean_m,
-/// ate_median_m, ate_max_m, rpe_trans_pct, rpe_rot_deg_per_m; the RPE values are null when
-/// no segment fits).
+/// ate_median_m, ate_max_m, rpe_trans_pct, rpe_rot_deg_per_m, are_rmse_deg, are_max_deg; the
+/// RPE values are null when no segment fits).
 std::string to_json(const EvalResult& r);
 
 /// A human-readable multi-line summary.

@@ -176,6 +176,7 @@ void Initializer::set_reference(const hal::Frame& frame, const KeypointGrid& fea
   win_views_ = 0;
   win_stride_ = 1;
   frames_since_ref_ = 0;
+  ref_first_matches_ = 0;
 }
 
 int Initializer::match_reference(const KeypointGrid& features) {
@@ -255,6 +256,7 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
     return;
   }
   const int m = match_reference(features);
+  if (ref_first_matches_ == 0) ref_first_matches_ = m;
   if (m < opts_.two_view.min_matches) {
     set_reference(frame, features);
     d.refusal = InitRefusal::kTooFewMatches;
@@ -295,7 +297,11 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
       d.R_c_w = tv.rotation_c1_c0 * ref_R_ref_w_;
       d.orientation_chain = chain_;
     }
-    if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns)) {
+    // A sweep leaves the reference's view: renew it while the orientation is still known.
+    const bool renew = d.has_orientation &&
+                       static_cast<double>(m) < opts_.rotation_renew_fraction * ref_first_matches_;
+    if (tv.refusal == geometry::TwoViewRefusal::kTooFewMatches || reference_too_old(frame.t_ns) ||
+        renew) {
       set_reference(frame, features, d.has_orientation ? &d.R_c_w : nullptr);
     } else {
       remember_frame(frame, features);

@@ -32,7 +32,9 @@
 ///   matches' bearings. References chain: a frame of known orientation that becomes the next
 ///   reference keeps its orientation, so that the orientations of a chain share one world
 ///   (the chain's first reference camera). A reference set without a known orientation starts
-///   a new chain.
+///   a new chain. While the pairs are pure rotations, a frame that keeps fewer than
+///   `rotation_renew_fraction` of the matches of the reference's first matched frame becomes
+///   the next reference (a sweep leaving the reference's view stays in one chain).
 /// - RGB-D: a start is one keyframe, the frame (the world frame), with a point per keypoint
 ///   whose sensor depth is valid.
 /// With `pipeline.focal: auto`, a start waits until `tracking.focal.min_init_estimates`
@@ -192,6 +194,7 @@ class Initializer {
   std::int64_t ref_t_ns_ = 0;
   Eigen::Matrix3d ref_R_ref_w_ = Eigen::Matrix3d::Identity();  // reference in its chain's world
   std::uint32_t chain_ = 0;                                    // the reference's chain
+  int ref_first_matches_ = 0;                 // matches of the first frame matched to the reference
   std::vector<Eigen::Vector3d> plane_hints_;  // plane normals of the reference's first planar tie
   std::vector<features::Keypoint> ref_kps_;
   std::vector<features::Descriptor> ref_descs_;

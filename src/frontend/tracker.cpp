@@ -902,6 +902,12 @@ void Tracker::initialize(const hal::Frame& frame, TrackingResult& r) {
     ++counters_.init_two_view_refusals[static_cast<std::size_t>(d.two_view)];
     counters_.last_init_refusal = refusal_name(d);  // a static name: no allocation
   }
+  if (d.has_orientation) {
+    r.has_orientation = true;
+    r.orientation_chain = d.orientation_chain;
+    r.q_chain_c = Eigen::Quaterniond(d.R_c_w.transpose());
+    ++counters_.frames_oriented;
+  }
   if (!d.started) return;
   // The segment's first keyframes and points go to keyframe creation (the tracking thread
   // never takes the map's writer lock); tracking resumes once they are in
@@ -1077,6 +1083,9 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     r.state = TrackState::kNotInitialized;
     initialize(frame, r);
     advance_state(r);  // (a start anchors its frame to its own keyframe)
+    if (r.has_orientation && state_ == TrackerState::kInitializing) {
+      r.tracker_state = TrackerState::kInitializingRotation;
+    }
     return r;
   }
   const bool tracked = track(frame, r);

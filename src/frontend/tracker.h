@@ -79,6 +79,8 @@ struct RelocalizationHint {
 struct TrackerCounters {
   std::uint64_t init_attempts = 0;          ///< two-view reconstructions tried
   std::uint64_t init_refusals = 0;          ///< of which refused (degenerate)
+  std::uint64_t frames_oriented = 0;        ///< frames before a map with a known orientation (pure
+                                            ///< rotations of the initializer's reference)
   std::uint64_t initialized_seq = 0;        ///< frame the map was initialized at
   std::uint64_t reference_seq = 0;          ///< its reference frame (the world frame in mono)
   std::uint64_t segment_reference_seq = 0;  ///< reference frame of the latest segment's start

@@ -109,7 +109,9 @@ struct InitOptions {
   double ratio = 0.9;      ///< best / second-best ratio of an initialization match
   int min_features = 150;  ///< a reference frame needs this many keypoints
   double max_reference_age_s = 1.4;  ///< time a reference is kept while init is refused, s
-  bool plane_hints = false;          ///< break planar ties with an earlier frame's plane normals
+  double rotation_renew_fraction =
+      0.5;  ///< a pure rotation keeping fewer of the reference's matches renews it (0: off)
+  bool plane_hints = false;  ///< break planar ties with an earlier frame's plane normals
   double max_plane_hint_reference_age_s =
       3.0;                    ///< time a reference is kept while it holds plane hints, s
   int rgbd_min_points = 100;  ///< RGB-D: keypoints with valid depth needed to start
@@ -130,6 +132,13 @@ struct InitOptions {
     v.field("max_reference_age_s", max_reference_age_s,
             "time a reference frame is kept while initialization is refused, s",
             options::Range<double>{0.01, 1e6});
+    v.field("rotation_renew_fraction", rotation_renew_fraction,
+            "a frame refused as a pure rotation of the reference that matches fewer than this "
+            "fraction of the matches of the reference's first frame becomes the next reference "
+            "and keeps its orientation, so that a sweep out of the reference's view stays in one "
+            "chain of known orientation (0: only when matches run out or the reference is too "
+            "old)",
+            options::Range<double>{0.0, 1.0});
     v.field("plane_hints", plane_hints,
             "break the two-fold tie of a planar scene with the plane normals an earlier frame "
             "of the same reference reported (off by default: on room_orbit it initializes "

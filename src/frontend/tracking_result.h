@@ -4,7 +4,10 @@
 /// Trivially copyable-ish plain data: it travels through an SpscRing by value.
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
+
+#include <Eigen/Geometry>
 
 #include "core/pose.h"
 
@@ -42,13 +45,20 @@ constexpr const char* to_string(TrackState s) {
 ///   new map segment, with a world frame of its own, is being initialized (as at the start),
 ///   while each frame is still offered to the relocalizer. A relocalization returns to the
 ///   segment of the keyframe found; an initialization continues in the new segment.
+/// - initializing_rotation: initializing the first map, and the frame was found to be a pure
+///   rotation of the initializer's reference: its orientation is known (TrackingResult
+///   `has_orientation`), its position and the map are not.
 enum class TrackerState : std::uint8_t {
   kInitializing = 0,
   kTracking = 1,
   kLost = 2,
   kRelocalizing = 3,
   kNewSegment = 4,
+  kInitializingRotation = 5,
 };
+/// Number of TrackerState values (counters indexed by it).
+inline constexpr std::size_t kTrackerStateCount =
+    static_cast<std::size_t>(TrackerState::kInitializingRotation) + 1;
 
 /// Printable name of a TrackerState.
 constexpr const char* to_string(TrackerState s) {
@@ -63,6 +73,8 @@ constexpr const char* to_string(TrackerState s) {
       return "relocalizing";
     case TrackerState::kNewSegment:
       return "new_segment";
+    case TrackerState::kInitializingRotation:
+      return "initializing_rotation";
   }
   return "?";
 }
@@ -114,6 +126,12 @@ struct TrackingResult {
   bool is_keyframe = false;        ///< this frame became a keyframe
   bool keyframe_job = false;       ///< the keyframe still has to be created (queue a job)
   SE3d T_w_c = SE3d::Identity();   ///< camera-to-world pose (valid when tracked)
+  /// Not tracked (no map yet), monocular: the frame is a pure rotation of the initializer's
+  /// reference, and its orientation is known in the world of the chain of references it belongs
+  /// to (the chain's first reference camera; frontend/initializer.h). Its position is not.
+  bool has_orientation = false;
+  std::uint32_t orientation_chain = 0;  ///< that chain (a new number: a new world)
+  Eigen::Quaterniond q_chain_c = Eigen::Quaterniond::Identity();  ///< camera-to-chain rotation
   /// Tracked with a keyframe in the map: the pose relative to the newest keyframe as the map
   /// held it then (T_kf_c = T_w_kf^-1 T_w_c), to re-anchor the frame to the final map.
   bool has_anchor = false;

@@ -87,6 +87,8 @@ Status OutputStage::open(const std::string& dir, const OutputOptions& opts) {
   if (s.is_ok()) s = open_file(keyframes_, (d / "keyframes.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(ground_truth_, (d / "groundtruth.txt").string(), nullptr);
   if (s.is_ok()) s = open_file(anchors_, (d / "frame_anchors.txt").string(), nullptr);
+  if (s.is_ok()) s = open_file(orientation_, (d / "orientation.txt").string(), nullptr);
+  orientation_written_ = false;
   if (s.is_ok()) {
     s = open_file(frames_csv_, (d / "frames.csv").string(),
                   "seq,t_s,state,keyframe,features,feature_hash,matches,inliers,query_t,query_s,"
@@ -124,6 +126,17 @@ std::int64_t OutputStage::spin_once(const frontend::TrackingResult& r, std::int6
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c);
     std::fwrite(line.data(), 1, static_cast<std::size_t>(n), trajectory_.f);
     if (r.is_keyframe) std::fwrite(line.data(), 1, static_cast<std::size_t>(n), keyframes_.f);
+  }
+  if (r.has_orientation) {
+    if (!orientation_written_ || r.orientation_chain != orientation_chain_) {
+      std::fprintf(orientation_.f, "# chain %u\n", unsigned{r.orientation_chain});
+      orientation_chain_ = r.orientation_chain;
+      orientation_written_ = true;
+    }
+    SE3d T_chain_c = SE3d::Identity();
+    T_chain_c.linear() = r.q_chain_c.toRotationMatrix();
+    const int n = format_tum_line(line.data(), line.size(), r.t_ns, T_chain_c);
+    std::fwrite(line.data(), 1, static_cast<std::size_t>(n), orientation_.f);
   }
   if (r.has_ground_truth) {
     const int n = format_tum_line(line.data(), line.size(), r.t_ns, r.T_w_c_gt);
@@ -167,8 +180,8 @@ OutputStage::File* OutputStage::segment_file(std::uint16_t s, bool keyframes) {
 }
 
 void OutputStage::flush_all() {
-  for (File* f :
-       {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_}) {
+  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_,
+                  &orientation_}) {
     if (f->f != nullptr && (std::fflush(f->f) != 0 || std::ferror(f->f) != 0)) write_error_ = true;
   }
   for (File& f : segment_files_) {
@@ -179,8 +192,8 @@ void OutputStage::flush_all() {
 Status OutputStage::close() {
   Status result;
   flush_all();
-  for (File* f :
-       {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_}) {
+  for (File* f : {&trajectory_, &keyframes_, &ground_truth_, &anchors_, &frames_csv_, &latency_csv_,
+                  &orientation_}) {
     if (f->f == nullptr) continue;
     const bool bad = std::ferror(f->f) != 0;
     if (std::fclose(f->f) != 0 || bad) {

@@ -21,6 +21,11 @@
 ///                   query_s,query_total,keyframe_reason,kl,focal,tracker_state,segment` for every
 ///                   processed frame
 /// - latency.csv     `seq,t_s,capture_ms,queue_ms,tracking_ms,end_to_end_ms,output_ms`
+/// - orientation.txt TUM lines, translation 0, of the frames with a known orientation before a
+///                   map (tracker_state initializing_rotation: pure rotations of the
+///                   initializer's reference; TrackingResult::has_orientation), camera-to-world
+///                   in the world of their chain of references. A `# chain N` line opens each
+///                   chain: chains do not share a world. Their positions are not known.
 /// (keyframes.csv, one line per keyframe created, is written by the pipeline from the
 /// keyframe thread: `seq,t_s,segment,keypoints,tracked,free,no_match,low_parallax,few_views,
 /// rejected,depth,new_points,neighbours`, depth/depth_inference.h KeypointFates.)
@@ -74,6 +79,9 @@ class OutputStage {
   File anchors_;       // tracked frames relative to their anchor keyframe
   File frames_csv_;
   File latency_csv_;
+  File orientation_;                     // frames of known orientation before a map
+  std::uint32_t orientation_chain_ = 0;  // chain of the last orientation line
+  bool orientation_written_ = false;     // a chain line has been written
   std::string dir_;
   std::vector<File> segment_files_;  // [2 (s - 1)]: trajectory, [2 (s - 1) + 1]: keyframes
   std::uint64_t frames_ = 0;

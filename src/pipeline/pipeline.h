@@ -314,10 +314,11 @@ class Pipeline {
   std::unique_ptr<platform::LatencyRecorder> lat_end_to_end_;
   ThreadAllocs allocs_capture_{"capture"};
   ThreadAllocs allocs_tracking_{"tracking"};
-  std::array<ThreadAllocs, 5> allocs_by_state_{};  ///< per frontend::TrackerState
-  std::vector<SegmentStats> segment_stats_;        ///< per segment id (sized at init)
-  std::vector<SegmentOutput> segment_outputs_;     ///< join_segment_files' result
-  std::uint16_t main_segment_ = 0;                 ///< trajectory.txt's segment
+  std::array<ThreadAllocs, frontend::kTrackerStateCount>
+      allocs_by_state_{};                       ///< per frontend::TrackerState
+  std::vector<SegmentStats> segment_stats_;     ///< per segment id (sized at init)
+  std::vector<SegmentOutput> segment_outputs_;  ///< join_segment_files' result
+  std::uint16_t main_segment_ = 0;              ///< trajectory.txt's segment
   void count_state_allocs(const frontend::TrackingResult& r, std::uint64_t allocations);
   ThreadAllocs allocs_output_{"output"};
   PipelineStats stats_;

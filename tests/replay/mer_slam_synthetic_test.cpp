@@ -14,6 +14,8 @@
 #include <opencv2/core.hpp>
 #include <signal.h>
 
+#include "eval/trajectory_eval.h"
+#include "hal/ground_truth.h"
 #include "support/run_command.h"
 
 namespace mer {
@@ -396,6 +398,78 @@ TEST(MerSlamSynthetic, MonoThreadedRunAllocatesNothingOnHotThreadsOnceTracking) 
   // Keyframes were made and optimized meanwhile (the work that could leak into tracking).
   EXPECT_GE(static_cast<int>(s["map"]["keyframes"]), 3);
   EXPECT_GE(static_cast<int>(s["backend"]["local_ba_runs"]), 1);
+}
+
+// A camera that only turns (room_rotation's sweeps without translation) gives no map, but
+// every frame refused as a pure rotation reports its orientation: tracker_state
+// initializing_rotation in frames.csv, the rotation in orientation.txt, which must match the
+// truth's up to one rotation of its chain's world.
+TEST(MerSlamSynthetic, PureRotationReportsOrientationsAndNoMap) {
+  const auto d = fresh_dir("mer_e2e_pure_rotation");
+  std::filesystem::create_directories(d);
+  const auto cfg = d / "rotation.yaml";
+  {
+    std::FILE* f = std::fopen(cfg.string().c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs(
+        "camera:\n  synthetic:\n    fps: 30.0\n    width: 640\n    height: 480\n"
+        "    fov_x_deg: 70.0\n    num_boxes: 10\n    sweep_yaw_deg: 40.0\n"
+        "    sweep_pitch_deg: 15.0\n    sweep_period_s: 6.0\n    sweep_translation_m: 0.0\n",
+        f);
+    std::fclose(f);
+  }
+  constexpr int kFrames = 120;
+  const auto r = run_command(quote(kExe) + " --lockstep --input synthetic:room_rotation --config " +
+                             quote(cfg.string()) + " --max-frames " + std::to_string(kFrames) +
+                             " --quiet --output " + quote(d.string()));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(count_lines((d / "trajectory.txt").string()), 0) << "no map from a pure rotation";
+  // Frames reported as rotations, in frames.csv and in summary.json.
+  const std::string csv = read_text((d / "frames.csv").string());
+  int rotation_rows = 0;
+  for (std::size_t p = csv.find(",initializing_rotation,"); p != std::string::npos;
+       p = csv.find(",initializing_rotation,", p + 1)) {
+    ++rotation_rows;
+  }
+  cv::FileStorage s = open_summary(d);
+  ASSERT_TRUE(s.isOpened());
+  EXPECT_EQ(static_cast<int>(s["tracking"]["frames_oriented"]), rotation_rows);
+  EXPECT_GE(rotation_rows, 100) << "of " << kFrames << " frames";
+  // orientation.txt: the same frames, per chain; each chain scored on its own.
+  const auto gt = hal::load_tum_trajectory((d / "groundtruth.txt").string());
+  ASSERT_TRUE(gt.is_ok());
+  std::FILE* f = std::fopen((d / "orientation.txt").string().c_str(), "r");
+  ASSERT_NE(f, nullptr);
+  std::vector<std::string> chains;
+  char line[256];
+  while (std::fgets(line, sizeof line, f) != nullptr) {
+    if (line[0] == '#') {
+      chains.emplace_back();
+    } else if (!chains.empty()) {
+      chains.back() += line;
+    }
+  }
+  std::fclose(f);
+  ASSERT_GE(chains.size(), 1U);
+  EXPECT_LE(chains.size(), 2U) << "a sweep out of the reference's view keeps its chain";
+  int scored = 0;
+  for (std::size_t c = 0; c < chains.size(); ++c) {
+    const auto path = d / ("chain_" + std::to_string(c) + ".txt");
+    std::FILE* o = std::fopen(path.string().c_str(), "w");
+    ASSERT_NE(o, nullptr);
+    std::fputs(chains[c].c_str(), o);
+    std::fclose(o);
+    const auto est = hal::load_tum_trajectory(path.string());
+    ASSERT_TRUE(est.is_ok());
+    const auto pairs = eval::associate(gt.value(), est.value(), 1'000'000);
+    ASSERT_EQ(pairs.size(), est.value().poses.size());
+    scored += static_cast<int>(pairs.size());
+    const eval::EvalResult e =
+        eval::evaluate(gt.value(), est.value(), pairs, eval::Alignment::kRotation);
+    EXPECT_LT(e.are_rmse_deg, 0.2) << "chain " << c;
+    EXPECT_LT(e.are_max_deg, 0.5) << "chain " << c;
+  }
+  EXPECT_EQ(scored, rotation_rows);
 }
 
 // SIGINT mid-run: exit 0, summary says so, and every processed frame is in the files.

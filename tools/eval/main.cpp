@@ -20,9 +20,10 @@ constexpr int kExitNoPairs = 4;
 void print_usage(std::FILE* f) {
   std::fprintf(
       f,
-      "usage: mer_eval --gt FILE --est FILE [--align sim3|se3|none] [--max-dt SEC]\n"
+      "usage: mer_eval --gt FILE --est FILE [--align sim3|se3|none|rotation] [--max-dt SEC]\n"
       "                [--format tum|kitti] [--rpe-delta-m M | --rpe-delta-frames N] [--json]\n"
-      "  --align             alignment of the estimate to the ground truth (default se3)\n"
+      "  --align             alignment of the estimate to the ground truth (default se3);\n"
+      "                      rotation: fitted to the orientations alone (orientation.txt)\n"
       "  --max-dt            TUM association: max |dt| in seconds (default 0.02)\n"
       "  --format            tum (timestamps, nearest-time association; default) or kitti\n"
       "                      (12 numbers per line, no timestamps, matched by index)\n"
@@ -74,7 +75,7 @@ int main(int argc, char** argv) {
     } else if (a == "--est") {
       if (!value(est_path)) return usage_error("--est needs a file");
     } else if (a == "--align") {
-      if (!value(v)) return usage_error("--align needs sim3, se3 or none");
+      if (!value(v)) return usage_error("--align needs sim3, se3, none or rotation");
       const auto p = eval::parse_alignment(v);
       if (!p) return usage_error("--align: unknown alignment '" + v + "'");
       align = *p;

@@ -52,6 +52,8 @@ TEST(Alignment, ParseAndName) {
   EXPECT_EQ(parse_alignment("sim3"), Alignment::kSim3);
   EXPECT_EQ(parse_alignment("se3"), Alignment::kSe3);
   EXPECT_EQ(parse_alignment("none"), Alignment::kNone);
+  EXPECT_EQ(parse_alignment("rotation"), Alignment::kRotation);
+  EXPECT_STREQ(alignment_name(Alignment::kRotation), "rotation");
   EXPECT_FALSE(parse_alignment("SE3").has_value());
   EXPECT_STREQ(alignment_name(Alignment::kSim3), "sim3");
 }
@@ -102,6 +104,40 @@ TEST(Ate, StatisticsOfKnownOffsets) {
   EXPECT_NEAR(r.ate_mean_m, 2.5, 1e-12);
   EXPECT_NEAR(r.ate_median_m, 2.5, 1e-12);
   EXPECT_NEAR(r.ate_max_m, 4.0, 1e-12);
+}
+
+TEST(Are, RotationAlignmentRecoversTheOrientationsOfAPoseLessEstimate) {
+  // Orientations only (positions zero), in a world rotated by a known R: the rotation
+  // alignment must find R from the orientations and leave no rotation error; the known
+  // per-frame errors added afterwards come back as RMS and max.
+  const hal::Trajectory gt = curvy(120);
+  const Sim3 s = known_sim3(1.0);
+  hal::Trajectory est = gt;
+  for (auto& p : est.poses) {
+    p.T_w_c.linear() = s.R * p.T_w_c.linear();
+    p.T_w_c.translation().setZero();
+  }
+  const auto pairs = associate_by_index(gt, est);
+  EXPECT_TRUE(align_orientations(gt, est, pairs).isApprox(s.R.transpose(), 1e-12));
+  const EvalResult r = evaluate(gt, est, pairs, Alignment::kRotation);
+  EXPECT_LT(r.are_rmse_deg, 1e-6);
+  EXPECT_LT(r.are_max_deg, 1e-6);
+  EXPECT_DOUBLE_EQ(r.scale, 1.0);
+  // Alternate +-0.5 deg about z on every frame: RMS and max are 0.5 deg (the mean rotation
+  // stays the truth).
+  for (std::size_t i = 0; i < est.poses.size(); ++i) {
+    const double a = (i % 2 == 0 ? 0.5 : -0.5) * std::numbers::pi / 180.0;
+    est.poses[i].T_w_c.linear() =
+        est.poses[i].T_w_c.linear() * Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).matrix();
+  }
+  const EvalResult e = evaluate(gt, est, pairs, Alignment::kRotation);
+  EXPECT_NEAR(e.are_rmse_deg, 0.5, 0.02);
+  EXPECT_NEAR(e.are_max_deg, 0.5, 0.04);
+  // The position-based alignments report the rotation error too: a perfect Sim(3) copy has
+  // none.
+  const hal::Trajectory copy = transformed(gt, known_sim3(0.37));
+  const EvalResult c = evaluate(gt, copy, pairs, Alignment::kSim3);
+  EXPECT_LT(c.are_rmse_deg, 1e-6);
 }
 
 TEST(Associate, NearestWithinMaxDtAndOffsets) {
@@ -219,9 +255,9 @@ TEST(Json, HasAllKeys) {
   const hal::Trajectory gt = curvy(50);
   const EvalResult r = evaluate(gt, gt, associate_by_index(gt, gt), Alignment::kSim3);
   const std::string j = to_json(r);
-  for (const char* k :
-       {"\"pairs\": 50", "\"align\": \"sim3\"", "\"scale\"", "\"ate_rmse_m\"", "\"ate_mean_m\"",
-        "\"ate_median_m\"", "\"ate_max_m\"", "\"rpe_trans_pct\"", "\"rpe_rot_deg_per_m\""}) {
+  for (const char* k : {"\"pairs\": 50", "\"align\": \"sim3\"", "\"scale\"", "\"ate_rmse_m\"",
+                        "\"ate_mean_m\"", "\"ate_median_m\"", "\"ate_max_m\"", "\"rpe_trans_pct\"",
+                        "\"rpe_rot_deg_per_m\"", "\"are_rmse_deg\"", "\"are_max_deg\""}) {
     EXPECT_NE(j.find(k), std::string::npos) << k << " missing in " << j;
   }
 }
