@@ -136,6 +136,8 @@ void Initializer::reserve(int max_keypoints) {
   win_good_.reserve(n);
   tri_T_.reserve(nv + 2);
   tri_x_.reserve(nv + 2);
+  two_view_ws_.reserve(n, two_view_);
+  plane_hints_.reserve(geometry::kMaxPlaneNormals);
 }
 
 void Initializer::drop_reference() {
@@ -271,10 +273,12 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
     }
   }
   d.two_view_tried = true;
-  const geometry::TwoViewResult tv =
-      geometry::reconstruct_two_view(init_uv0_, init_uv1_, d.K, opts_.two_view, plane_hints_);
+  geometry::reconstruct_two_view(init_uv0_, init_uv1_, d.K, opts_.two_view, plane_hints_,
+                                 two_view_ws_, two_view_);
+  const geometry::TwoViewResult& tv = two_view_;
   if (!tv.ok) {
-    if (opts_.plane_hints && plane_hints_.empty()) plane_hints_ = tv.plane_normals_c0;
+    if (opts_.plane_hints && plane_hints_.empty())
+      plane_hints_.assign(tv.plane_normals_c0.begin(), tv.plane_normals_c0.end());
     d.refusal = InitRefusal::kTwoView;
     d.two_view = tv.refusal;
     MER_LOG_DEBUG("frame %llu: initialization refused (%s)",

@@ -45,8 +45,8 @@
 ///
 /// The initializer holds the reference and the state since it, and the last start
 /// (fill_segment_start copies it into the keyframe job that creates the segment's keyframes:
-/// the tracker never takes the map's writer lock). Setup (reserve) allocates; spin_once may
-/// allocate (the two-view reconstruction does). Not thread-safe: the tracking thread's.
+/// the tracker never takes the map's writer lock). Setup (reserve) allocates; spin_once does
+/// not (frames of at most the reserved keypoints). Not thread-safe: the tracking thread's.
 
 #include <array>
 #include <cstddef>
@@ -196,6 +196,8 @@ class Initializer {
   std::uint32_t chain_ = 0;                                    // the reference's chain
   int ref_first_matches_ = 0;                 // matches of the first frame matched to the reference
   std::vector<Eigen::Vector3d> plane_hints_;  // plane normals of the reference's first planar tie
+  geometry::TwoViewWorkspace two_view_ws_;    // reserved by reserve(): no allocation per frame
+  geometry::TwoViewResult two_view_;          // the last two-view reconstruction
   std::vector<features::Keypoint> ref_kps_;
   std::vector<features::Descriptor> ref_descs_;
   std::vector<Eigen::Vector2d> ref_prev_;  // last matched position of each reference keypoint

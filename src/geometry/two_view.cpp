@@ -323,7 +323,18 @@ std::optional<std::size_t> tie_broken_by_plane_hints(std::span<const Motion> can
 }
 
 /// The four (R, t) factorizations of an essential matrix (Hartley & Zisserman, result 9.19).
-std::vector<Motion> decompose_essential(const Eigen::Matrix3d& E) {
+/// Motion candidates of one model: at most the eight of a homography.
+struct MotionList {
+  static constexpr std::size_t kCapacity = kMaxPlaneNormals;
+  std::array<Motion, kCapacity> m;
+  std::size_t size = 0;
+  void push_back(const Motion& x) { m[size++] = x; }
+  Motion& operator[](std::size_t k) { return m[k]; }
+  const Motion& operator[](std::size_t k) const { return m[k]; }
+  std::span<const Motion> span() const { return {m.data(), size}; }
+};
+
+void decompose_essential(const Eigen::Matrix3d& E, MotionList& out) {
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(E, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Matrix3d U = svd.matrixU();
   Eigen::Matrix3d V = svd.matrixV();
@@ -334,7 +345,10 @@ std::vector<Motion> decompose_essential(const Eigen::Matrix3d& E) {
   const Eigen::Matrix3d R1 = U * W * V.transpose();
   const Eigen::Matrix3d R2 = U * W.transpose() * V.transpose();
   const Eigen::Vector3d t = U.col(2);
-  return {{R1, t}, {R1, -t}, {R2, t}, {R2, -t}};
+  out.size = 0;
+  for (const Motion& m : {Motion{R1, t}, Motion{R1, -t}, Motion{R2, t}, Motion{R2, -t}}) {
+    out.push_back(m);
+  }
 }
 
 /// The eight (R, t) factorizations of a calibrated homography Hn ~ R + t n^T / d
@@ -343,10 +357,11 @@ std::vector<Motion> decompose_essential(const Eigen::Matrix3d& E) {
 /// for d' = +d2 (rotation about y by theta) and d' = -d2 (reflection-like case), each with
 /// the four sign choices (e1, e3) of the normal's components. Empty when two singular values
 /// coincide (rotation-only or degenerate homography).
-std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
+void decompose_homography(const Eigen::Matrix3d& Hn, MotionList& out) {
+  out.size = 0;
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hn, Eigen::ComputeFullU | Eigen::ComputeFullV);
   const Eigen::Vector3d d = svd.singularValues();
-  if (d(0) / d(1) < 1.0 + kMinSingularGap || d(1) / d(2) < 1.0 + kMinSingularGap) return {};
+  if (d(0) / d(1) < 1.0 + kMinSingularGap || d(1) / d(2) < 1.0 + kMinSingularGap) return;
   const Eigen::Matrix3d& U = svd.matrixU();
   const Eigen::Matrix3d& V = svd.matrixV();
   const double s = U.determinant() * V.determinant();
@@ -361,8 +376,6 @@ std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
   const double root = std::sqrt((d1s - d2s) * (d2s - d3s));
   constexpr std::array<double, 4> kE1{1.0, 1.0, -1.0, -1.0};
   constexpr std::array<double, 4> kE3{1.0, -1.0, 1.0, -1.0};
-  std::vector<Motion> out;
-  out.reserve(2 * kE1.size());
   // d' = +d2
   const double cos_theta = (d2s + d1 * d3) / ((d1 + d3) * d2);
   const double sin_theta_abs = root / ((d1 + d3) * d2);
@@ -389,7 +402,6 @@ std::vector<Motion> decompose_homography(const Eigen::Matrix3d& Hn) {
     out.push_back(
         {s * U * Rp * V.transpose(), U * tp, facing_away(V * Eigen::Vector3d(x1, 0.0, x3))});
   }
-  return out;
 }
 
 /// What triangulating a model's inliers with one motion candidate gives.
@@ -434,13 +446,14 @@ bool triangulate_midpoint(const Motion& m, const Eigen::Vector3d& x0, const Eige
 /// Triangulates the inliers with candidate `m` (midpoint for the vote; DLT, as in the map,
 /// when `points`/`flags` are given) and applies the cheirality, reprojection and parallax
 /// tests.
-CandidateCheck check_candidate(const Motion& m, std::span<const Eigen::Vector2d> uv0,
-                               std::span<const Eigen::Vector2d> uv1,
-                               std::span<const std::uint8_t> inliers, const Pinhole& K,
-                               const TwoViewOptions& o, std::vector<Eigen::Vector3d>* points,
-                               std::vector<std::uint8_t>* flags) {
-  CandidateCheck c;
-  c.parallax_deg.reserve(uv0.size());
+void check_candidate(const Motion& m, std::span<const Eigen::Vector2d> uv0,
+                     std::span<const Eigen::Vector2d> uv1, std::span<const std::uint8_t> inliers,
+                     const Pinhole& K, const TwoViewOptions& o,
+                     std::vector<Eigen::Vector3d>* points, std::vector<std::uint8_t>* flags,
+                     CandidateCheck& c) {
+  c.good = 0;
+  c.consistent = 0;
+  c.parallax_deg.clear();
   c.status.assign(uv0.size(), 0);
   SE3d T_c1_c0 = SE3d::Identity();
   T_c1_c0.linear() = m.R;
@@ -477,7 +490,6 @@ CandidateCheck check_candidate(const Motion& m, std::span<const Eigen::Vector2d>
     if (final_map) (*points)[i] = X;
     if (flags != nullptr) (*flags)[i] = 1;
   }
-  return c;
 }
 
 /// Pixel fundamental matrix K^-T [t]x R K^-1 of a motion.
@@ -515,7 +527,7 @@ Motion perturb(const Motion& m, const Vector5d& d) {
 /// correspondences; returns the sum of squares.
 double sampson_residuals(const Motion& m, const Eigen::Matrix3d& Ki,
                          std::span<const Eigen::Vector2d> uv0, std::span<const Eigen::Vector2d> uv1,
-                         std::span<const std::size_t> idx, Eigen::VectorXd& r) {
+                         std::span<const std::size_t> idx, Eigen::Map<Eigen::VectorXd>& r) {
   const Eigen::Matrix3d F = fundamental_from_motion(m, Ki.inverse());
   for (std::size_t k = 0; k < idx.size(); ++k) {
     const Eigen::Vector3d x0 = uv0[idx[k]].homogeneous();
@@ -538,48 +550,72 @@ struct MotionSigma {
   double translation_dir_deg = std::numeric_limits<double>::infinity();
 };
 
+/// Buffers of refine_motion (capacity: the correspondences).
+struct RefineScratch {
+  std::vector<std::size_t> idx;
+  std::vector<double> r;
+  std::vector<double> r_try;
+  std::vector<double> J;
+  void reserve(std::size_t n) {
+    idx.reserve(n);
+    r.reserve(n);
+    r_try.reserve(n);
+    J.reserve(5 * n);
+  }
+};
+
 MotionSigma refine_motion(Motion& m, std::span<const Eigen::Vector2d> uv0,
                           std::span<const Eigen::Vector2d> uv1,
-                          std::span<const std::uint8_t> inliers, const Pinhole& K,
-                          double sigma_px) {
+                          std::span<const std::uint8_t> inliers, const Pinhole& K, double sigma_px,
+                          RefineScratch& s) {
   MotionSigma sigma;
-  std::vector<std::size_t> idx;
+  std::vector<std::size_t>& idx = s.idx;
+  idx.clear();
   for (std::size_t i = 0; i < inliers.size(); ++i) {
     if (inliers[i]) idx.push_back(i);
   }
   if (idx.size() < static_cast<std::size_t>(kSampleSize)) return sigma;
   const Eigen::Matrix3d Ki = k_matrix(K).inverse();
   const auto n = static_cast<Eigen::Index>(idx.size());
-  Eigen::VectorXd r(n), r_try(n);
-  Eigen::MatrixXd J(n, 5);
+  s.r.resize(idx.size());
+  s.r_try.resize(idx.size());
+  s.J.resize(5 * idx.size());
+  // Views of the buffers (r and r_try swap buffers when a step is taken).
+  double* r_buf = s.r.data();
+  double* r_try_buf = s.r_try.data();
+  const auto view = [n](double* p) { return Eigen::Map<Eigen::VectorXd>(p, n); };
+  Eigen::Map<Eigen::MatrixXd> J(s.J.data(), n, 5);
   const auto jacobian = [&] {
     for (int k = 0; k < 5; ++k) {
       Vector5d d = Vector5d::Zero();
       d(k) = kLmJacobianStep;
+      Eigen::Map<Eigen::VectorXd> r_try = view(r_try_buf);
       sampson_residuals(perturb(m, d), Ki, uv0, uv1, idx, r_try);
-      J.col(k) = (r_try - r) / kLmJacobianStep;
+      J.col(k) = (r_try - view(r_buf)) / kLmJacobianStep;
     }
   };
-  double cost = sampson_residuals(m, Ki, uv0, uv1, idx, r);
+  Eigen::Map<Eigen::VectorXd> r0 = view(r_buf);
+  double cost = sampson_residuals(m, Ki, uv0, uv1, idx, r0);
   double lambda = kLmInitialDamping;
   bool converged = false;
   for (int it = 0; it < kLmMaxIterations && !converged; ++it) {
     jacobian();
     const Matrix5d jtj = J.transpose() * J;
-    const Vector5d g = J.transpose() * r;
+    const Vector5d g = J.transpose() * view(r_buf);
     bool improved = false;
     while (!improved && lambda < kLmMaxDamping) {
       Matrix5d A = jtj;
       A.diagonal() *= 1.0 + lambda;
       const Vector5d d = A.ldlt().solve(-g);
       const Motion candidate = perturb(m, d);
+      Eigen::Map<Eigen::VectorXd> r_try = view(r_try_buf);
       const double c = sampson_residuals(candidate, Ki, uv0, uv1, idx, r_try);
       if (c < cost) {
         improved = true;
         converged = (cost - c) / cost < kLmMinRelativeDecrease;
         m = candidate;
         cost = c;
-        r.swap(r_try);
+        std::swap(r_buf, r_try_buf);
         lambda *= kLmDampingDown;
       } else {
         lambda *= kLmDampingUp;
@@ -600,9 +636,10 @@ MotionSigma refine_motion(Motion& m, std::span<const Eigen::Vector2d> uv0,
   return sigma;
 }
 
-/// Upper median of a copy of v (0 when empty).
-double median_of(std::vector<double> v) {
-  return upper_median(v);
+/// Upper median of v (0 when empty), reordering a copy in `scratch`.
+double median_of(std::span<const double> v, std::vector<double>& scratch) {
+  scratch.assign(v.begin(), v.end());
+  return upper_median(scratch);
 }
 
 /// The rotation nearest to M = sum of b1 b0^T over bearing pairs (orthogonal Procrustes).
@@ -659,14 +696,30 @@ void refine_rotation(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen
 }
 
 /// A refused result: no map (the diagnostics filled so far are kept).
-TwoViewResult refuse(TwoViewResult r, TwoViewRefusal why) {
+void refuse(TwoViewResult& r, TwoViewRefusal why) {
   r.ok = false;
   r.refusal = why;
   r.T_c1_c0 = SE3d::Identity();
   r.points_c0.clear();
   r.triangulated.clear();
   r.num_triangulated = 0;
-  return r;
+}
+
+/// r as default-constructed, its vectors emptied but keeping their capacity.
+void reset_keeping_capacity(TwoViewResult& r) {
+  std::vector<Eigen::Vector3d> points = std::move(r.points_c0);
+  std::vector<std::uint8_t> triangulated = std::move(r.triangulated);
+  std::vector<Eigen::Vector3d> normals = std::move(r.plane_normals_c0);
+  std::vector<SE3d> motions = std::move(r.candidate_motions);
+  r = TwoViewResult{};
+  points.clear();
+  triangulated.clear();
+  normals.clear();
+  motions.clear();
+  r.points_c0 = std::move(points);
+  r.triangulated = std::move(triangulated);
+  r.plane_normals_c0 = std::move(normals);
+  r.candidate_motions = std::move(motions);
 }
 
 }  // namespace
@@ -705,26 +758,51 @@ const char* to_string(TwoViewModel m) {
   return "unknown";
 }
 
-TwoViewModelFit fit_two_view_models(std::span<const Eigen::Vector2d> uv0,
-                                    std::span<const Eigen::Vector2d> uv1, int iterations,
-                                    double sigma_px, std::uint64_t seed) {
-  TwoViewModelFit fit;
+namespace {
+
+/// Buffers of fit_models (capacity: the correspondences).
+struct FitScratch {
+  std::vector<Eigen::Vector2d> p0;
+  std::vector<Eigen::Vector2d> p1;
+  std::vector<std::uint8_t> mask;
+  void reserve(std::size_t n, TwoViewModelFit& fit) {
+    p0.reserve(n);
+    p1.reserve(n);
+    mask.reserve(n);
+    fit.inliers_h.reserve(n);
+    fit.inliers_f.reserve(n);
+  }
+};
+
+/// fit_two_view_models into `fit` (every field overwritten) with the buffers of `s`.
+void fit_models(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen::Vector2d> uv1,
+                int iterations, double sigma_px, std::uint64_t seed, FitScratch& s,
+                TwoViewModelFit& fit) {
+  fit.H = Eigen::Matrix3d::Identity();
+  fit.F = Eigen::Matrix3d::Zero();
+  fit.num_inliers_h = 0;
+  fit.num_inliers_f = 0;
+  fit.score_h = 0;
+  fit.score_f = 0;
   const std::size_t n = std::min(uv0.size(), uv1.size());
   fit.inliers_h.assign(n, 0);
   fit.inliers_f.assign(n, 0);
-  if (uv0.size() != uv1.size() || n < static_cast<std::size_t>(kSampleSize)) return fit;
+  if (uv0.size() != uv1.size() || n < static_cast<std::size_t>(kSampleSize)) return;
   const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
 
   const Eigen::Matrix3d T0 = hartley_normalization(uv0);
   const Eigen::Matrix3d T1 = hartley_normalization(uv1);
-  std::vector<Eigen::Vector2d> p0(n);
-  std::vector<Eigen::Vector2d> p1(n);
+  std::vector<Eigen::Vector2d>& p0 = s.p0;
+  std::vector<Eigen::Vector2d>& p1 = s.p1;
+  p0.resize(n);
+  p1.resize(n);
   for (std::size_t i = 0; i < n; ++i) {
     p0[i] = apply(T0, uv0[i]);
     p1[i] = apply(T1, uv1[i]);
   }
 
-  std::vector<std::uint8_t> mask(n);
+  std::vector<std::uint8_t>& mask = s.mask;
+  mask.assign(n, 0);
   SplitMix64 rng(seed);
   std::array<std::size_t, kSampleSize> idx{};
   fit.score_h = -1.0;
@@ -789,6 +867,16 @@ TwoViewModelFit fit_two_view_models(std::span<const Eigen::Vector2d> uv0,
   }
   fit.score_h = std::max(fit.score_h, 0.0);
   fit.score_f = std::max(fit.score_f, 0.0);
+}
+
+}  // namespace
+
+TwoViewModelFit fit_two_view_models(std::span<const Eigen::Vector2d> uv0,
+                                    std::span<const Eigen::Vector2d> uv1, int iterations,
+                                    double sigma_px, std::uint64_t seed) {
+  FitScratch s;
+  TwoViewModelFit fit;
+  fit_models(uv0, uv1, iterations, sigma_px, seed, s, fit);
   return fit;
 }
 
@@ -825,14 +913,30 @@ struct PlaneParallaxFit {
   int num_off_plane_inliers = 0;
 };
 
+/// Buffers of plane_and_parallax_fundamental (capacity: the correspondences).
+struct ParallaxScratch {
+  std::vector<std::size_t> off;
+  std::vector<Eigen::Vector3d> lines;  // unit-normal parallax lines of the off-plane points
+  std::vector<std::uint8_t> mask;
+  void reserve(std::size_t n, PlaneParallaxFit& fit) {
+    off.reserve(n);
+    lines.reserve(n);
+    mask.reserve(n);
+    fit.inliers.reserve(n);
+  }
+};
+
 bool plane_and_parallax_fundamental(const Eigen::Matrix3d& H, std::span<const Eigen::Vector2d> uv0,
                                     std::span<const Eigen::Vector2d> uv1, double sigma_px,
-                                    int iterations, std::uint64_t seed, PlaneParallaxFit& out) {
+                                    int iterations, std::uint64_t seed, ParallaxScratch& s,
+                                    PlaneParallaxFit& out) {
   const std::size_t n = uv0.size();
   const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
   const double min_off2 = kOffPlaneSigmas * kOffPlaneSigmas * sigma_px * sigma_px;
-  std::vector<std::size_t> off;
-  std::vector<Eigen::Vector3d> lines;  // unit-normal parallax lines of the off-plane points
+  std::vector<std::size_t>& off = s.off;
+  std::vector<Eigen::Vector3d>& lines = s.lines;
+  off.clear();
+  lines.clear();
   for (std::size_t i = 0; i < n; ++i) {
     const Eigen::Vector3d q = H * uv0[i].homogeneous();
     if (!(std::abs(q.z()) > std::numeric_limits<double>::min())) continue;
@@ -850,7 +954,8 @@ bool plane_and_parallax_fundamental(const Eigen::Matrix3d& H, std::span<const Ei
     return Eigen::Matrix3d(e_x * H);
   };
   SplitMix64 rng(seed);
-  std::vector<std::uint8_t> mask(n);
+  std::vector<std::uint8_t>& mask = s.mask;
+  mask.assign(n, 0);
   double best_score = -1.0;
   Eigen::Vector3d best_e = Eigen::Vector3d::Zero();
   for (int it = 0; it < iterations; ++it) {
@@ -899,34 +1004,87 @@ bool plane_and_parallax_fundamental(const Eigen::Matrix3d& H, std::span<const Ei
 /// may lie on the homography's plane.
 constexpr double kEssentialFallbackMaxPlanarFraction = 0.85;
 
-TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
-                               std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
-                               const TwoViewOptions& o, bool force_essential,
-                               std::span<const Eigen::Vector3d> plane_hints) {
-  TwoViewResult r;
+}  // namespace
+
+/// Every buffer of a reconstruction (TwoViewWorkspace).
+struct TwoViewWorkspace::Buffers {
+  FitScratch fit_scratch;
+  TwoViewModelFit fit;
+  ParallaxScratch parallax_scratch;
+  PlaneParallaxFit pp;
+  RefineScratch refine;
+  MotionList candidates;
+  std::array<CandidateCheck, MotionList::kCapacity> checks;
+  CandidateCheck final_check;
+  std::vector<double> values;  // disparities, depths
+  std::vector<double> median;  // median_of's copy
+  std::vector<std::uint8_t> refined_inliers;
+  std::vector<std::uint8_t> mask;
+  TwoViewResult retry;  // the essential model's try after an ambiguous homography
+
+  void reserve(std::size_t n) {
+    fit_scratch.reserve(n, fit);
+    parallax_scratch.reserve(n, pp);
+    refine.reserve(n);
+    for (CandidateCheck& c : checks) reserve_check(c, n);
+    reserve_check(final_check, n);
+    values.reserve(n);
+    median.reserve(n);
+    refined_inliers.reserve(n);
+    mask.reserve(n);
+    reserve_result(retry, n);
+  }
+  static void reserve_check(CandidateCheck& c, std::size_t n) {
+    c.parallax_deg.reserve(n);
+    c.status.reserve(n);
+  }
+  static void reserve_result(TwoViewResult& r, std::size_t n) {
+    r.points_c0.reserve(n);
+    r.triangulated.reserve(n);
+    r.plane_normals_c0.reserve(MotionList::kCapacity);
+    // Both models' candidates (an ambiguous homography, then the essential model's).
+    r.candidate_motions.reserve(2 * MotionList::kCapacity);
+  }
+};
+
+TwoViewWorkspace::TwoViewWorkspace() : b_(std::make_unique<Buffers>()) {}
+TwoViewWorkspace::~TwoViewWorkspace() = default;
+TwoViewWorkspace::TwoViewWorkspace(TwoViewWorkspace&&) noexcept = default;
+TwoViewWorkspace& TwoViewWorkspace::operator=(TwoViewWorkspace&&) noexcept = default;
+
+void TwoViewWorkspace::reserve(std::size_t max_correspondences, TwoViewResult& out) {
+  b_->reserve(max_correspondences);
+  Buffers::reserve_result(out, max_correspondences);
+}
+
+namespace {
+
+void reconstruct_impl(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen::Vector2d> uv1,
+                      const Pinhole& K, const TwoViewOptions& o, bool force_essential,
+                      std::span<const Eigen::Vector3d> plane_hints, TwoViewWorkspace::Buffers& ws,
+                      TwoViewResult& r) {
+  reset_keeping_capacity(r);
   const std::size_t n = uv0.size();
   if (uv1.size() != n || n < static_cast<std::size_t>(std::max(o.min_matches, kSampleSize))) {
-    return refuse(std::move(r), TwoViewRefusal::kTooFewMatches);
+    return refuse(r, TwoViewRefusal::kTooFewMatches);
   }
 
   // 1. Static scene: the camera did not move (or barely).
-  {
-    std::vector<double> disparity(n);
-    for (std::size_t i = 0; i < n; ++i) disparity[i] = (uv1[i] - uv0[i]).norm();
-    r.median_disparity_px = median_of(std::move(disparity));
-  }
+  ws.values.resize(n);
+  for (std::size_t i = 0; i < n; ++i) ws.values[i] = (uv1[i] - uv0[i]).norm();
+  r.median_disparity_px = median_of(ws.values, ws.median);
   if (r.median_disparity_px < o.min_median_disparity_px) {
-    return refuse(std::move(r), TwoViewRefusal::kStatic);
+    return refuse(r, TwoViewRefusal::kStatic);
   }
 
   // 2. Both models, same samples.
-  const TwoViewModelFit fit =
-      fit_two_view_models(uv0, uv1, o.ransac_iterations, o.sigma_px, o.seed);
+  TwoViewModelFit& fit = ws.fit;
+  fit_models(uv0, uv1, o.ransac_iterations, o.sigma_px, o.seed, ws.fit_scratch, fit);
   r.score_h = fit.score_h;
   r.score_f = fit.score_f;
   const int best_inliers = std::max(fit.num_inliers_h, fit.num_inliers_f);
   if (best_inliers < o.min_triangulated) {
-    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+    return refuse(r, TwoViewRefusal::kTooFewTriangulated);
   }
 
   // 3. Pure rotation: the image moved, but a rotation alone explains it. Then F is not
@@ -938,7 +1096,7 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
       refine_rotation(uv0, uv1, K, o.sigma_px, kRotationRefineRounds, R);
       r.rotation_c1_c0 = R;
       r.rotation_inliers = n_rot;
-      return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+      return refuse(r, TwoViewRefusal::kPureRotation);
     }
   }
 
@@ -946,7 +1104,8 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   const double r_h =
       fit.score_h / std::max(fit.score_h + fit.score_f, std::numeric_limits<double>::min());
   const Eigen::Matrix3d Km = k_matrix(K);
-  std::vector<Motion> candidates;
+  MotionList& candidates = ws.candidates;
+  candidates.size = 0;
   std::span<const std::uint8_t> inliers;
   // The essential fallback needs points off the plane: when the homography explains nearly
   // all of F's inliers, E is as undetermined as the plane's twin solution.
@@ -955,12 +1114,16 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   Eigen::Matrix3d F = fit.F;
   std::span<const std::uint8_t> inliers_f = fit.inliers_f;
   int num_inliers_f = fit.num_inliers_f;
-  PlaneParallaxFit pp;
+  PlaneParallaxFit& pp = ws.pp;
+  pp.F = Eigen::Matrix3d::Zero();
+  pp.inliers.clear();
+  pp.num_inliers = 0;
+  pp.num_off_plane_inliers = 0;
   if (force_essential &&
       fit.num_inliers_h > kEssentialFallbackMaxPlanarFraction * fit.num_inliers_f) {
     if (!plane_and_parallax_fundamental(fit.H, uv0, uv1, o.sigma_px, o.ransac_iterations, o.seed,
-                                        pp)) {
-      return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+                                        ws.parallax_scratch, pp)) {
+      return refuse(r, TwoViewRefusal::kAmbiguous);
     }
     F = pp.F;
     inliers_f = pp.inliers;
@@ -970,30 +1133,29 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
     r.model = TwoViewModel::kHomography;
     r.num_inliers = fit.num_inliers_h;
     inliers = fit.inliers_h;
-    candidates = decompose_homography(Km.inverse() * fit.H * Km);
-    if (candidates.empty()) return refuse(std::move(r), TwoViewRefusal::kPureRotation);
+    decompose_homography(Km.inverse() * fit.H * Km, candidates);
+    if (candidates.size == 0) return refuse(r, TwoViewRefusal::kPureRotation);
   } else {
     r.model = TwoViewModel::kEssential;
     r.num_inliers = num_inliers_f;
     inliers = inliers_f;
-    candidates = decompose_essential(Km.transpose() * F * Km);
+    decompose_essential(Km.transpose() * F * Km, candidates);
   }
 
   // 5. Cheirality / reprojection / parallax vote.
   std::size_t best = 0;
-  std::vector<CandidateCheck> checks;
-  checks.reserve(candidates.size());
-  for (std::size_t k = 0; k < candidates.size(); ++k) {
-    checks.push_back(check_candidate(candidates[k], uv0, uv1, inliers, K, o, nullptr, nullptr));
+  std::array<CandidateCheck, MotionList::kCapacity>& checks = ws.checks;
+  for (std::size_t k = 0; k < candidates.size; ++k) {
+    check_candidate(candidates[k], uv0, uv1, inliers, K, o, nullptr, nullptr, checks[k]);
     const auto key = [](const CandidateCheck& c) { return std::pair(c.good, c.consistent); };
     if (key(checks[k]) > key(checks[best])) best = k;
   }
-  r.median_parallax_deg = median_of(checks[best].parallax_deg);
+  r.median_parallax_deg = median_of(checks[best].parallax_deg, ws.median);
   if (r.median_parallax_deg < o.min_parallax_deg) {
-    return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+    return refuse(r, TwoViewRefusal::kLowParallax);
   }
   if (checks[best].good < o.min_triangulated) {
-    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+    return refuse(r, TwoViewRefusal::kTooFewTriangulated);
   }
   // Ambiguity: another candidate consistent with nearly as many points that also agrees with
   // (almost) all of the winner's good points. A candidate that puts a fraction of the
@@ -1003,8 +1165,9 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   // consistent points, not good ones: under forward motion the true decomposition sees less
   // parallax than its twin (which moves sideways), so fewer of its points pass the parallax
   // bar, though it explains them all.
-  std::vector<std::size_t> tied{best};
-  for (std::size_t k = 0; k < checks.size(); ++k) {
+  std::array<std::size_t, MotionList::kCapacity> tied_buf{best};
+  std::size_t num_tied = 1;
+  for (std::size_t k = 0; k < candidates.size; ++k) {
     if (k == best || checks[k].consistent <= o.ambiguity_ratio * checks[best].consistent) {
       continue;
     }
@@ -1014,27 +1177,28 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
         ++refuted;
       }
     }
-    if (refuted < kMinRefutedFraction * checks[best].good) tied.push_back(k);
+    if (refuted < kMinRefutedFraction * checks[best].good) tied_buf[num_tied++] = k;
   }
+  const std::span<const std::size_t> tied(tied_buf.data(), num_tied);
   if (tied.size() > 1) {
     const bool planar = r.model == TwoViewModel::kHomography;
     const std::optional<std::size_t> winner =
-        planar ? tie_broken_by_plane_hints(candidates, tied, plane_hints, o) : std::nullopt;
+        planar ? tie_broken_by_plane_hints(candidates.span(), tied, plane_hints, o) : std::nullopt;
     if (!winner) {
       if (planar && r.median_parallax_deg >= o.plane_hint_min_parallax_deg) {
         for (const std::size_t k : tied) r.plane_normals_c0.push_back(candidates[k].n);
       }
       for (const std::size_t k : tied) r.candidate_motions.push_back(unit_motion(candidates[k]));
-      return refuse(std::move(r), TwoViewRefusal::kAmbiguous);
+      return refuse(r, TwoViewRefusal::kAmbiguous);
     }
     if (*winner != best) {
       best = *winner;
-      r.median_parallax_deg = median_of(checks[best].parallax_deg);
+      r.median_parallax_deg = median_of(checks[best].parallax_deg, ws.median);
       if (r.median_parallax_deg < o.min_parallax_deg) {
-        return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+        return refuse(r, TwoViewRefusal::kLowParallax);
       }
       if (checks[best].good < o.min_triangulated) {
-        return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+        return refuse(r, TwoViewRefusal::kTooFewTriangulated);
       }
     }
   }
@@ -1044,14 +1208,15 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   //    correspondences with the refined motion and repeat until the inlier set settles
   //    (local optimization, as in LO-RANSAC). The homography is kept as decomposed: its DLT
   //    fit on a plane is already constrained by every inlier in both images.
-  std::vector<std::uint8_t> refined_inliers;
+  std::vector<std::uint8_t>& refined_inliers = ws.refined_inliers;
   if (r.model == TwoViewModel::kEssential) {
     const double inv_var = 1.0 / (kResidualVarianceFactor * o.sigma_px * o.sigma_px);
     refined_inliers.assign(inliers.begin(), inliers.end());
-    std::vector<std::uint8_t> mask(n);
+    std::vector<std::uint8_t>& mask = ws.mask;
+    mask.assign(n, 0);
     for (int round = 0; round < kLocalOptimizationRounds; ++round) {
       const MotionSigma sig =
-          refine_motion(candidates[best], uv0, uv1, refined_inliers, K, o.sigma_px);
+          refine_motion(candidates[best], uv0, uv1, refined_inliers, K, o.sigma_px, ws.refine);
       r.rotation_sigma_deg = sig.rotation_deg;
       r.translation_dir_sigma_deg = sig.translation_dir_deg;
       int count = 0;
@@ -1067,13 +1232,14 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   // 7. Map of the winner, scaled to median depth 1 in camera 0.
   r.points_c0.assign(n, Eigen::Vector3d::Zero());
   r.triangulated.assign(n, 0);
-  const CandidateCheck final_check =
-      check_candidate(candidates[best], uv0, uv1, inliers, K, o, &r.points_c0, &r.triangulated);
+  CandidateCheck& final_check = ws.final_check;
+  check_candidate(candidates[best], uv0, uv1, inliers, K, o, &r.points_c0, &r.triangulated,
+                  final_check);
   r.num_triangulated = final_check.good;
   // The refined motion and the DLT points must pass the same tests as the vote.
-  r.median_parallax_deg = median_of(final_check.parallax_deg);
+  r.median_parallax_deg = median_of(final_check.parallax_deg, ws.median);
   if (r.median_parallax_deg < o.min_parallax_deg) {
-    return refuse(std::move(r), TwoViewRefusal::kLowParallax);
+    return refuse(r, TwoViewRefusal::kLowParallax);
   }
   // The plane-and-parallax F rests on the few points off the plane: it must show a sharp
   // translation direction whatever the parallax.
@@ -1082,17 +1248,17 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
       (r.model != TwoViewModel::kEssential ||
        r.translation_dir_sigma_deg > o.max_translation_dir_sigma_deg)) {
     r.candidate_motions.push_back(unit_motion(candidates[best]));
-    return refuse(std::move(r), TwoViewRefusal::kUncertainMotion);
+    return refuse(r, TwoViewRefusal::kUncertainMotion);
   }
   if (final_check.good < o.min_triangulated) {
-    return refuse(std::move(r), TwoViewRefusal::kTooFewTriangulated);
+    return refuse(r, TwoViewRefusal::kTooFewTriangulated);
   }
-  std::vector<double> depths;
-  depths.reserve(n);
+  std::vector<double>& depths = ws.values;
+  depths.clear();
   for (std::size_t i = 0; i < n; ++i) {
     if (r.triangulated[i]) depths.push_back(r.points_c0[i].z());
   }
-  const double scale = 1.0 / median_of(std::move(depths));
+  const double scale = 1.0 / median_of(depths, ws.median);
   for (std::size_t i = 0; i < n; ++i) {
     if (r.triangulated[i]) r.points_c0[i] *= scale;
   }
@@ -1100,7 +1266,6 @@ TwoViewResult reconstruct_impl(std::span<const Eigen::Vector2d> uv0,
   r.T_c1_c0.linear() = candidates[best].R;
   r.T_c1_c0.translation() = candidates[best].t * scale;
   r.ok = true;
-  return r;
 }
 
 }  // namespace
@@ -1109,7 +1274,18 @@ TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
                                    std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
                                    const TwoViewOptions& o,
                                    std::span<const Eigen::Vector3d> plane_hints) {
-  TwoViewResult r = reconstruct_impl(uv0, uv1, K, o, false, plane_hints);
+  TwoViewWorkspace ws;
+  TwoViewResult r;
+  reconstruct_two_view(uv0, uv1, K, o, plane_hints, ws, r);
+  return r;
+}
+
+void reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
+                          std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
+                          const TwoViewOptions& o, std::span<const Eigen::Vector3d> plane_hints,
+                          TwoViewWorkspace& ws, TwoViewResult& r) {
+  TwoViewWorkspace::Buffers& b = *ws.b_;
+  reconstruct_impl(uv0, uv1, K, o, false, plane_hints, b, r);
   // A homography preferred by the scores can still be ambiguous (a dominant plane seen
   // under forward-ish motion has two physically valid decompositions) while the points off
   // the plane (boxes in front of a wall, another wall) pin down the essential matrix: try
@@ -1118,12 +1294,15 @@ TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
   if (!r.ok && r.model == TwoViewModel::kHomography &&
       (r.refusal == TwoViewRefusal::kAmbiguous ||
        r.refusal == TwoViewRefusal::kTooFewTriangulated)) {
-    TwoViewResult e = reconstruct_impl(uv0, uv1, K, o, true, plane_hints);
-    if (e.ok) return e;
+    TwoViewResult& e = b.retry;
+    reconstruct_impl(uv0, uv1, K, o, true, plane_hints, b, e);
+    if (e.ok) {
+      std::swap(r, e);  // (both keep their buffers)
+      return;
+    }
     r.candidate_motions.insert(r.candidate_motions.end(), e.candidate_motions.begin(),
                                e.candidate_motions.end());
   }
-  return r;
 }
 
 }  // namespace mer::geometry

@@ -41,10 +41,13 @@
 /// so R_H ~ 0.5 on planes and ~0.1-0.3 on general scenes, and residuals are normalized by the
 /// variance of a two-image residual (2 sigma^2).
 ///
-/// Only used during initialization: allocates; ~6 ms CPU for 1000 matches (x86, Release).
+/// Only used during initialization; ~6 ms CPU for 1000 matches (x86, Release). With a reserved
+/// TwoViewWorkspace it does not allocate.
 
+#include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -160,6 +163,10 @@ const char* to_string(TwoViewRefusal r);
 /// Short name of a model ("homography", ...).
 const char* to_string(TwoViewModel m);
 
+/// Most motion candidates of one model (a homography's eight decompositions): the most
+/// plane normals a result lists.
+inline constexpr std::size_t kMaxPlaneNormals = 8;
+
 /// Result of reconstruct_two_view. On refusal (ok == false) there is no map: T_c1_c0 is the
 /// identity, points_c0 / triangulated are empty; the diagnostics computed before the refusal
 /// (disparity, scores, parallax, model) are kept.
@@ -212,6 +219,37 @@ TwoViewResult reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
                                    std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
                                    const TwoViewOptions& o,
                                    std::span<const Eigen::Vector3d> plane_hints = {});
+
+/// Scratch buffers of reconstruct_two_view. Reserved once for at most `max_correspondences`
+/// correspondences, a call with no more than that many does not allocate, nor does it grow
+/// an `out` result that went through such a call before (the tracking thread initializes with
+/// one workspace and one result). Move-only; not shared between threads.
+class TwoViewWorkspace {
+ public:
+  TwoViewWorkspace();
+  ~TwoViewWorkspace();
+  TwoViewWorkspace(TwoViewWorkspace&&) noexcept;
+  TwoViewWorkspace& operator=(TwoViewWorkspace&&) noexcept;
+  TwoViewWorkspace(const TwoViewWorkspace&) = delete;
+  TwoViewWorkspace& operator=(const TwoViewWorkspace&) = delete;
+  /// Reserves every buffer, and those of `out`, for `max_correspondences`.
+  void reserve(std::size_t max_correspondences, TwoViewResult& out);
+  struct Buffers;  ///< two_view.cpp
+
+ private:
+  friend void reconstruct_two_view(std::span<const Eigen::Vector2d>,
+                                   std::span<const Eigen::Vector2d>, const Pinhole&,
+                                   const TwoViewOptions&, std::span<const Eigen::Vector3d>,
+                                   TwoViewWorkspace&, TwoViewResult&);
+  std::unique_ptr<Buffers> b_;
+};
+
+/// reconstruct_two_view into `out` (every field overwritten) with the buffers of `ws`:
+/// the same result, without allocating once `ws` is reserved (TwoViewWorkspace).
+void reconstruct_two_view(std::span<const Eigen::Vector2d> uv0,
+                          std::span<const Eigen::Vector2d> uv1, const Pinhole& K,
+                          const TwoViewOptions& o, std::span<const Eigen::Vector3d> plane_hints,
+                          TwoViewWorkspace& ws, TwoViewResult& out);
 
 // ---- Building blocks (also used by self_calibration) --------------------------------------
 

@@ -374,14 +374,24 @@ TEST(MerSlamSynthetic, ThreadedRunReportsZeroHotAllocationsAndLatencies) {
             static_cast<int>(ba["local_ba_runs"]));
 }
 
-// The product's main mode, monocular and threaded: once tracking, the capture and tracking
-// threads allocate nothing while the depth thread triangulates keyframes and the back end
-// optimizes them. hall_drive starts within a few frames (first pose ~12, ~38 steady tracked
-// frames of 60 when measured). Initialization still allocates and is counted apart.
-TEST(MerSlamSynthetic, MonoThreadedRunAllocatesNothingOnHotThreadsOnceTracking) {
+// The product's main mode, monocular and threaded: the capture and tracking threads allocate
+// nothing, neither while initializing (the two-view reconstruction and the start work in
+// buffers reserved at start) nor once tracking, while the depth thread triangulates keyframes
+// and the back end optimizes them. hall_drive starts within a few frames (first pose ~12): a
+// warm-up of 2 frames leaves ~8 initializing frames, the start's included, to count.
+TEST(MerSlamSynthetic, MonoThreadedRunAllocatesNothingOnHotThreads) {
   const auto d = fresh_dir("mer_e2e_mono_threaded");
-  const auto r = run_command(quote(kExe) + " --input synthetic:hall_drive --max-frames 90 " +
-                             "--quiet --output " + quote(d.string()));
+  std::filesystem::create_directories(d);
+  const auto cfg = d / "warmup.yaml";
+  {
+    std::FILE* f = std::fopen(cfg.string().c_str(), "w");
+    ASSERT_NE(f, nullptr);
+    std::fputs("telemetry:\n  warmup_frames: 2\n", f);
+    std::fclose(f);
+  }
+  const auto r =
+      run_command(quote(kExe) + " --input synthetic:hall_drive --max-frames 90 " + "--config " +
+                  quote(cfg.string()) + " --quiet --output " + quote(d.string()));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   cv::FileStorage s = open_summary(d);
   ASSERT_TRUE(s.isOpened());
@@ -395,6 +405,9 @@ TEST(MerSlamSynthetic, MonoThreadedRunAllocatesNothingOnHotThreadsOnceTracking) 
   const cv::FileNode tracking = s["tracking_allocs_by_state"]["tracking"];
   EXPECT_GE(static_cast<int>(tracking["frames"]), 20);
   EXPECT_EQ(static_cast<int>(tracking["allocations"]), 0);
+  const cv::FileNode init = s["tracking_allocs_by_state"]["initializing"];
+  EXPECT_GE(static_cast<int>(init["frames"]), 3);
+  EXPECT_EQ(static_cast<int>(init["allocations"]), 0);
   // Keyframes were made and optimized meanwhile (the work that could leak into tracking).
   EXPECT_GE(static_cast<int>(s["map"]["keyframes"]), 3);
   EXPECT_GE(static_cast<int>(s["backend"]["local_ba_runs"]), 1);
@@ -435,6 +448,10 @@ TEST(MerSlamSynthetic, PureRotationReportsOrientationsAndNoMap) {
   ASSERT_TRUE(s.isOpened());
   EXPECT_EQ(static_cast<int>(s["tracking"]["frames_oriented"]), rotation_rows);
   EXPECT_GE(rotation_rows, 100) << "of " << kFrames << " frames";
+  // Refusing a map allocates nothing on the tracking thread (after the warm-up frames).
+  const cv::FileNode rotating = s["tracking_allocs_by_state"]["initializing_rotation"];
+  EXPECT_GE(static_cast<int>(rotating["frames"]), 90);
+  EXPECT_EQ(static_cast<int>(rotating["allocations"]), 0);
   // orientation.txt: the same frames, per chain; each chain scored on its own.
   const auto gt = hal::load_tum_trajectory((d / "groundtruth.txt").string());
   ASSERT_TRUE(gt.is_ok());

@@ -1,6 +1,7 @@
 #include "geometry/two_view.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <ctime>
@@ -12,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include "core/options.h"
+#include "platform/alloc_counter.h"
 
 namespace mer::geometry {
 namespace {
@@ -588,6 +590,78 @@ TEST(TwoView, RandomMotionsNeverReturnAWrongMap) {
       worst_dir_low, worst_dir_high, 100 * worst_points);
   EXPECT_EQ(wide_general_accepted, wide_general);
   EXPECT_GE(wide_accepted, static_cast<int>(0.8 * wide));
+}
+
+// ---- Real-time contract -----------------------------------------------------------------
+
+void expect_same_result(const TwoViewResult& a, const TwoViewResult& b, int trial) {
+  EXPECT_EQ(a.ok, b.ok) << "trial " << trial;
+  EXPECT_EQ(a.refusal, b.refusal) << "trial " << trial;
+  EXPECT_EQ(a.model, b.model) << "trial " << trial;
+  EXPECT_EQ(a.num_inliers, b.num_inliers) << "trial " << trial;
+  EXPECT_EQ(a.num_triangulated, b.num_triangulated) << "trial " << trial;
+  EXPECT_EQ(a.median_parallax_deg, b.median_parallax_deg) << "trial " << trial;
+  EXPECT_EQ(a.median_disparity_px, b.median_disparity_px) << "trial " << trial;
+  EXPECT_TRUE(a.T_c1_c0.matrix() == b.T_c1_c0.matrix()) << "trial " << trial;
+  EXPECT_TRUE(a.rotation_c1_c0 == b.rotation_c1_c0) << "trial " << trial;
+  EXPECT_EQ(a.points_c0, b.points_c0) << "trial " << trial;
+  EXPECT_EQ(a.triangulated, b.triangulated) << "trial " << trial;
+  EXPECT_EQ(a.plane_normals_c0, b.plane_normals_c0) << "trial " << trial;
+  ASSERT_EQ(a.candidate_motions.size(), b.candidate_motions.size()) << "trial " << trial;
+  for (std::size_t k = 0; k < a.candidate_motions.size(); ++k) {
+    EXPECT_TRUE(a.candidate_motions[k].matrix() == b.candidate_motions[k].matrix())
+        << "trial " << trial;
+  }
+}
+
+TEST(TwoView, ReservedWorkspaceGivesTheSameResultWithoutAllocating) {
+  // The random motions above (every outcome: both models accepted, pure rotation, low
+  // parallax, planar ties and the essential model's retry), then plane hints: with one
+  // workspace and one result reserved for the largest scene, no call allocates and each
+  // result is the allocating call's, bit for bit. (The counter sees operator new, not
+  // Eigen's malloc: the implementation maps its dynamic vectors onto the reserved buffers.)
+  ASSERT_TRUE(platform::alloc::counter_linked());
+  constexpr int kN = 600;
+  TwoViewWorkspace ws;
+  TwoViewResult r;
+  ws.reserve(kN, r);
+  std::mt19937_64 rng(2024);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  std::array<int, kTwoViewRefusalCount> outcomes{};
+  constexpr int kTrials = kOptimizedBuild ? 60 : 20;
+  for (int trial = 0; trial < kTrials; ++trial) {
+    const Eigen::Vector3d axis(gauss(rng), gauss(rng), gauss(rng));
+    const double baseline = trial % 4 == 0 ? 0.0 : 0.6 * unit(rng);
+    const Eigen::Vector3d dir = Eigen::Vector3d(gauss(rng), gauss(rng), gauss(rng)).normalized();
+    const SE3d T_c1_c0_gt = motion(axis, 15.0 * unit(rng), baseline * dir);
+    // Fewer matches than reserved on some trials: buffers shrink and grow back within capacity.
+    const int n = trial % 5 == 0 ? kN / 2 : kN;
+    const Scene s = make_scene(T_c1_c0_gt, n, 1.0, 0.15, trial % 3 == 0, 100 + trial);
+    TwoViewOptions o;
+    o.seed = static_cast<std::uint64_t>(trial) + 1;
+    const TwoViewResult expected = reconstruct_two_view(s.uv0, s.uv1, camera(), o);
+    const std::uint64_t before = platform::alloc::thread_allocations();
+    reconstruct_two_view(s.uv0, s.uv1, camera(), o, {}, ws, r);
+    EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U) << "trial " << trial;
+    expect_same_result(expected, r, trial);
+    ++outcomes[static_cast<std::size_t>(r.refusal)];
+  }
+  // The trials reached the paths that matter.
+  EXPECT_GT(outcomes[static_cast<std::size_t>(TwoViewRefusal::kNone)], 0);
+  EXPECT_GT(outcomes[static_cast<std::size_t>(TwoViewRefusal::kPureRotation)] +
+                outcomes[static_cast<std::size_t>(TwoViewRefusal::kLowParallax)],
+            0);
+  // Plane hints (PlaneHintsFromAnEarlierFrameBreakThePlanarTie's first trial geometry).
+  const Scene sj = make_scene(motion(Eigen::Vector3d::UnitY(), 6.0, {-0.08, 0.0, 0.28}), 500, 1.0,
+                              0.05, /*planar=*/true, 900);
+  const TwoViewResult hints = reconstruct_two_view(sj.uv0, sj.uv1, camera(), TwoViewOptions{});
+  const TwoViewResult expected =
+      reconstruct_two_view(sj.uv0, sj.uv1, camera(), TwoViewOptions{}, hints.plane_normals_c0);
+  const std::uint64_t before = platform::alloc::thread_allocations();
+  reconstruct_two_view(sj.uv0, sj.uv1, camera(), TwoViewOptions{}, hints.plane_normals_c0, ws, r);
+  EXPECT_EQ(platform::alloc::thread_allocations() - before, 0U);
+  expect_same_result(expected, r, -1);
 }
 
 /// CPU time of this thread, ms (wall time is meaningless while other builds load the box).
