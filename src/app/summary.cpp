@@ -186,6 +186,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"reference_seq\": " << tc.reference_seq << ", \"init_attempts\": " << tc.init_attempts
     << ", \"init_refusals\": " << tc.init_refusals
     << ", \"frames_oriented\": " << tc.frames_oriented
+    << ", \"failed_starts\": " << tc.failed_starts
     << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal) << ", \"init_refused\": {";
   for (std::size_t i = 1; i < tc.init_frame_refusals.size(); ++i) {
     j << (i > 1 ? ", " : "")

@@ -427,7 +427,10 @@ void Tracker::advance_state(TrackingResult& r) {
   } else if (!initialized_ && segments_started_ == 1) {
     state_ = TrackerState::kInitializing;  // the first map: nothing to relocalize against
   } else {
-    if (lost_frames_ == 0) ++counters_.lost_spells;
+    if (lost_frames_ == 0) {
+      ++counters_.lost_spells;
+      count_failed_start(r);
+    }
     ++lost_frames_;
     counters_.max_lost_frames = std::max(counters_.max_lost_frames, lost_frames_);
     if (initialized_) {
@@ -450,6 +453,21 @@ void Tracker::advance_state(TrackingResult& r) {
       !candidate_ && (state_ == TrackerState::kRelocalizing ||
                       (state_ == TrackerState::kNewSegment && relocalization_available_));
   if (r.relocalization_request) ++counters_.relocalization_requests;
+}
+
+void Tracker::count_failed_start(const TrackingResult& r) {
+  if (!initialized_ || segment_ != start_segment_ || start_t_ns_ == 0) return;
+  const double since_start_s = static_cast<double>(r.t_ns - start_t_ns_) * 1e-9;
+  if (since_start_s >= opts_.init.failed_start_window_s ||
+      start_keyframes_ > static_cast<std::uint32_t>(opts_.init.failed_start_max_keyframes)) {
+    return;
+  }
+  ++counters_.failed_starts;
+  start_t_ns_ = 0;  // once per start
+  MER_LOG_INFO(
+      "frame %llu: lost %.2f s after the start of segment %u with %u keyframes: a "
+      "failed start",
+      static_cast<unsigned long long>(r.seq), since_start_s, unsigned{segment_}, start_keyframes_);
 }
 
 void Tracker::start_new_segment(std::uint64_t seq) {
@@ -765,6 +783,7 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
     r.keyframe_reason = static_cast<std::uint8_t>(reason);
     last_reason_ = r.keyframe_reason;
     ++counters_.keyframes_decided;
+    if (segment_ == start_segment_) ++start_keyframes_;
     ++counters_.keyframe_reasons[static_cast<std::size_t>(reason)];
     MER_LOG_DEBUG("frame %llu: keyframe (%s, inliers %d, kl %.3f)",
                   static_cast<unsigned long long>(frame.seq), to_string(reason), r.num_inliers,
@@ -925,6 +944,9 @@ void Tracker::initialize(const hal::Frame& frame, TrackingResult& r) {
   }
   if (d.num_views == 2) counters_.segment_reference_seq = d.ref_seq;
   counters_.initialized = true;
+  start_t_ns_ = frame.t_ns;
+  start_segment_ = segment_;
+  start_keyframes_ = static_cast<std::uint32_t>(d.num_views);
   policy_.reset(d.num_points, frame.t_ns, T_c_w_.inverse().translation());
   r.state = TrackState::kTracked;
   r.T_w_c = d.T_w_c;

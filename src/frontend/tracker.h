@@ -84,6 +84,8 @@ struct TrackerCounters {
   std::uint64_t initialized_seq = 0;        ///< frame the map was initialized at
   std::uint64_t reference_seq = 0;          ///< its reference frame (the world frame in mono)
   std::uint64_t segment_reference_seq = 0;  ///< reference frame of the latest segment's start
+  std::uint64_t failed_starts = 0;          ///< starts lost within init.failed_start_window_s
+                                            ///< with at most failed_start_max_keyframes
   bool initialized = false;
   std::uint64_t tracked = 0;
   std::uint64_t lost = 0;
@@ -201,6 +203,10 @@ class Tracker {
   StartPoll poll_segment_start();
   /// Updates the state machine after a frame (tracked or not) and fills r's state fields.
   void advance_state(TrackingResult& r);
+  /// At the first lost frame of a spell: counts a failed start (TrackerCounters) when the
+  /// latest start's segment is lost within init.failed_start_window_s of it with at most
+  /// init.failed_start_max_keyframes keyframes.
+  void count_failed_start(const TrackingResult& r);
   /// Forgets the current segment's tracking state and initializes the next segment from the
   /// next frames (tracking.new_segments).
   void start_new_segment(std::uint64_t seq);
@@ -312,7 +318,10 @@ class Tracker {
 
   // State machine and relocalization.
   TrackerState state_ = TrackerState::kInitializing;
-  std::uint64_t lost_frames_ = 0;  // consecutive lost frames
+  std::uint64_t lost_frames_ = 0;      // consecutive lost frames
+  std::int64_t start_t_ns_ = 0;        // the latest start's frame time
+  std::uint16_t start_segment_ = 0;    // the segment it started
+  std::uint32_t start_keyframes_ = 0;  // keyframes made in that segment since
   bool relocalization_available_ = false;
   RelocalizationHint hint_;                      // pending pose from the relocalizer
   map::KeyframeId reloc_keyframe_ = map::kNoId;  // joins Q_T for the frame searched from a hint

@@ -111,7 +111,9 @@ struct InitOptions {
   double max_reference_age_s = 1.4;  ///< time a reference is kept while init is refused, s
   double rotation_renew_fraction =
       0.5;  ///< a pure rotation keeping fewer of the reference's matches renews it (0: off)
-  bool plane_hints = false;  ///< break planar ties with an earlier frame's plane normals
+  double failed_start_window_s = 1.0;  ///< a start lost within this time is a failed start, s
+  int failed_start_max_keyframes = 5;  ///< ... if its segment has at most this many keyframes
+  bool plane_hints = false;            ///< break planar ties with an earlier frame's plane normals
   double max_plane_hint_reference_age_s =
       3.0;                    ///< time a reference is kept while it holds plane hints, s
   int rgbd_min_points = 100;  ///< RGB-D: keypoints with valid depth needed to start
@@ -139,6 +141,15 @@ struct InitOptions {
             "chain of known orientation (0: only when matches run out or the reference is too "
             "old)",
             options::Range<double>{0.0, 1.0});
+    v.field("failed_start_window_s", failed_start_window_s,
+            "a segment lost within this time of its start, with at most "
+            "failed_start_max_keyframes keyframes, counts as a failed start (summary.json "
+            "tracking.failed_starts), s",
+            options::Range<double>{0.0, 1e6});
+    v.field("failed_start_max_keyframes", failed_start_max_keyframes,
+            "most keyframes a segment lost within failed_start_window_s of its start may have "
+            "to count as a failed start",
+            options::Range<int>{0, 1000000});
     v.field("plane_hints", plane_hints,
             "break the two-fold tie of a planar scene with the plane normals an earlier frame "
             "of the same reference reported (off by default: on room_orbit it initializes "
