@@ -30,7 +30,9 @@
 #                  are the map segments at the end (never merged), the main segment's share
 #                  of the tracked frames (%) and trajectory.txt's ATE over the best own ATE
 #                  (each segment's frames aligned on their own, >= 30 frames) of the
-#                  segments joined in it ('-' without a merge)
+#                  segments joined in it ('-' without a merge); the hard table's last
+#                  column counts the failed starts (summary.json tracking.failed_starts:
+#                  segments lost within 1 s of their start with at most 5 keyframes)
 #          robust  orbit and loop seeds under four small keyframe-policy changes besides the
 #                  default (tracking.keyframe.min_baseline_ratio 0.05 / 0.015, min_spread
 #                  0.40 / 0.50): counts the runs that diverge (re-anchored ATE above
@@ -163,12 +165,12 @@ run_one() {
     if [ "$best_own" != "-" ] && [ "$(field accuracy ate_rmse_m)" != "-" ]; then
       ratio="$(awk -v a="$(field accuracy ate_rmse_m)" -v b="$best_own" 'BEGIN { printf "%.2f", a / b }')"
     fi
-    printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s\n' "$name" "${frames:--}" \
+    printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s %6s\n' "$name" "${frames:--}" \
       "${first:--}" "$(field accuracy tracked_after_init_pct)" "$(field tracking lost)" \
       "$(field accuracy ate_rmse_m)" "$(field accuracy ate_pct_of_path)" \
       "$(field gt_audit relocalizations_wrong)/$(field gt_audit relocalizations)" \
       "$(field gt_audit loops_wrong)/$(field gt_audit loops)" "$segs" "$main_pct" "$ratio" \
-      >> "$HARD_RESULTS"
+      "$(field tracking failed_starts)" >> "$HARD_RESULTS"
     if [ "$KEEP" -eq 0 ]; then
       find "$dir" -mindepth 1 ! -name summary.json ! -name log.txt ! -name config.yaml \
         ! -name frames.csv -delete
@@ -271,8 +273,8 @@ wait || true
 sort -o "$RESULTS" "$RESULTS"
 if [ -s "$HARD_RESULTS" ]; then
   sort -o "$HARD_RESULTS" "$HARD_RESULTS"
-  printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s\n' run frames first tracked% lost \
-    ate_m ate% reloc_bad loop_bad segs main% merge_x
+  printf '%-30s %7s %7s %9s %6s %9s %9s %9s %9s %4s %6s %6s %6s\n' run frames first tracked% \
+    lost ate_m ate% reloc_bad loop_bad segs main% merge_x fstart
   cat "$HARD_RESULTS"
   awk '$2 != "failed:" { n++; if ($4 != "-") { t += $4; m++ } } $2 == "failed:" { f++ }
     END { printf "hard runs %d, failed %d", n + f, f + 0
