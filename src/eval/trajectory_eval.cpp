@@ -9,7 +9,8 @@
 #include <sstream>
 
 #include <Eigen/Geometry>
-#include <Eigen/SVD>
+
+#include "geometry/lie.h"
 
 namespace mer::eval {
 
@@ -114,11 +115,10 @@ Sim3 align_positions(const std::vector<Eigen::Vector3d>& src,
 
 namespace {
 
-// Angle of a rotation matrix, accurate near zero too (acos of the trace loses half the digits
-// there: 1e-16 of rounding reads as 1e-8 rad).
+// Angle of a rotation matrix (geometry::so3_log: accurate near zero, where acos of the trace
+// loses half the digits).
 double rotation_angle(const Eigen::Matrix3d& R) {
-  const Eigen::Vector3d axis_sin(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1));
-  return std::atan2(0.5 * axis_sin.norm(), 0.5 * (R.trace() - 1.0));
+  return geometry::so3_log(R).norm();
 }
 
 void compute_rpe(const std::vector<SE3d>& G, const std::vector<SE3d>& P, const RpeOptions& opt,
@@ -169,10 +169,7 @@ Eigen::Matrix3d align_orientations(const hal::Trajectory& gt, const hal::Traject
   for (const PosePair& p : pairs) {
     M += gt.poses[p.gt].T_w_c.linear() * est.poses[p.est].T_w_c.linear().transpose();
   }
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
-  return svd.matrixU() * D * svd.matrixV().transpose();
+  return geometry::nearest_rotation(M);
 }
 
 EvalResult evaluate(const hal::Trajectory& gt, const hal::Trajectory& est,

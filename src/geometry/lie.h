@@ -16,6 +16,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <Eigen/SVD>
 
 #include "core/pose.h"
 
@@ -124,6 +125,15 @@ inline Vector6d se3_log(const SE3d& T) {
   // V is invertible for |w| < 2 pi (always true for the principal log).
   xi.tail<3>() = so3_left_jacobian(w).inverse() * T.translation();
   return xi;
+}
+
+/// The rotation nearest to M in the Frobenius norm (orthogonal Procrustes: M = U S V^T gives
+/// U diag(1, 1, det(U V^T)) V^T), e.g. for M = sum of b_i a_i^T over pairs of unit vectors,
+/// the rotation that best maps a_i onto b_i.
+inline Eigen::Matrix3d nearest_rotation(const Eigen::Matrix3d& M) {
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
+  return svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
 }
 
 /// Rotation angle (rad, in [0, pi]) between two rotation matrices.

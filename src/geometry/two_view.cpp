@@ -11,6 +11,7 @@
 #include <Eigen/SVD>
 
 #include "core/median.h"
+#include "geometry/lie.h"
 #include "geometry/triangulation.h"
 #include "geometry/two_view_models.h"
 
@@ -432,13 +433,6 @@ double median_of(std::span<const double> v, std::vector<double>& scratch) {
   return upper_median(scratch);
 }
 
-/// The rotation nearest to M = sum of b1 b0^T over bearing pairs (orthogonal Procrustes).
-Eigen::Matrix3d procrustes_rotation(const Eigen::Matrix3d& M) {
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  const Eigen::Vector3d diag(1.0, 1.0, (svd.matrixU() * svd.matrixV().transpose()).determinant());
-  return svd.matrixU() * diag.asDiagonal() * svd.matrixV().transpose();
-}
-
 /// Whether the rotation-only model x1 ~ K R K^-1 x0 maps uv0 onto uv1 within the chi2 gate
 /// (`inv_var`: 1 / the variance of a two-image residual).
 bool explained_by_rotation(const Eigen::Matrix3d& R, const Pinhole& K, const Eigen::Vector2d& uv0,
@@ -457,7 +451,7 @@ int rotation_only_inliers(std::span<const Eigen::Vector2d> uv0,
   for (std::size_t i = 0; i < uv0.size(); ++i) {
     if (inliers_h[i]) M += K.bearing(uv1[i]) * K.bearing(uv0[i]).transpose();
   }
-  R_out = procrustes_rotation(M);
+  R_out = nearest_rotation(M);
   const double inv_var = 1.0 / (kResidualVarianceFactor * sigma_px * sigma_px);
   int count = 0;
   for (std::size_t i = 0; i < uv0.size(); ++i) {
@@ -481,7 +475,7 @@ void refine_rotation(std::span<const Eigen::Vector2d> uv0, std::span<const Eigen
       ++count;
     }
     if (count < kHomographySampleSize) return;
-    R = procrustes_rotation(M);
+    R = nearest_rotation(M);
   }
 }
 
