@@ -130,10 +130,11 @@ run_one() {
     echo "${v:--}"
   }
   if [[ "$name" == hard_* ]]; then
-    # frames, first frame with a pose (frames.csv state), tracked after it, lost, ATE.
+    # frames, first frame with a pose in a segment that was kept (summary.json
+    # first_pose_seq: a discarded failed start does not count), tracked after it, lost, ATE.
     local first frames
-    first="$(awk -F, 'NR > 1 && $3 != "not_initialized" && $3 != "lost" { print $1; exit }' \
-      "$dir/frames.csv")"
+    first="$(sed -n 's/.*"first_pose_seq": \(-\{0,1\}[0-9]*\).*/\1/p' <<< "$s" | head -n 1)"
+    [ "$first" = "-1" ] && first="-"
     frames="$(sed -n 's/.*"frames_processed": \([0-9]*\).*/\1/p' <<< "$s" | head -n 1)"
     # Map segments at the end (those that never merged), the main segment's share of the
     # tracked frames, and trajectory.txt's ATE over the best own ATE of the segments joined
@@ -146,6 +147,7 @@ run_one() {
         return substr($0, RSTART + length(key) + 4, RLENGTH - length(key) - 4) + 0
       }
       {
+        if (index($0, "\"discarded\": true")) next  # a failed start: its frames are lost
         frames += num("frames"); into = num("merged_into")
         if (into < 0) segs++
         else merged++

@@ -135,11 +135,14 @@ AccuracyReport evaluate_run(const std::string& dir, SensorMode sensor_mode,
   // Tracked fraction from the initialization on: frames at or after the first tracked one
   // of the run, in any segment (`tracked` counts them all; trajectory.txt may hold a
   // segment that started later).
+  // (Not a discarded segment's: its frames count as lost, the start came later.)
   std::int64_t t_init = t_first;
-  if (std::vector<std::int64_t> all; only_segment < 0) {
+  for (const pipeline::SegmentStats& seg : stats.segments) {
+    if (only_segment >= 0 || seg.discarded) continue;
+    std::vector<std::int64_t> own;
     std::string ignored;
-    if (segment_frame_stamps(dir, -1, all, ignored) && !all.empty()) {
-      t_init = std::min(t_init, all.front());
+    if (segment_frame_stamps(dir, seg.id, own, ignored) && !own.empty()) {
+      t_init = std::min(t_init, own.front());
     }
   }
   std::uint64_t since_init = 0;

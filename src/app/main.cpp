@@ -116,14 +116,19 @@ int main(int argc, char** argv) {
     info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
     info.accuracy_keyframes = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
                                                 "keyframes_final.txt");
+    app::AccuracyReport discarded;
+    discarded.note = "discarded (a failed start)";
     for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      info.accuracy_segments.push_back(
-          app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(), g.trajectory));
+      info.accuracy_segments.push_back(g.discarded ? discarded
+                                                   : app::evaluate_run(args.output_dir,
+                                                                       config.pipeline.mode,
+                                                                       pipe.stats(), g.trajectory));
     }
     // Each segment's own frames, aligned on their own: the same as its file's unless
     // segments merged (a merged segment's frames are in the file it joined).
     for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      info.accuracy_segments_own.push_back(pipe.stats().segments.size() > 1
+      info.accuracy_segments_own.push_back(g.discarded ? discarded
+                                           : pipe.stats().segments.size() > 1
                                                ? app::evaluate_run(args.output_dir,
                                                                    config.pipeline.mode,
                                                                    pipe.stats(), g.trajectory, g.id)

@@ -55,6 +55,8 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   j << "  \"frames_processed\": " << st.frames_processed << ",\n";
   j << "  \"frames_dropped\": " << st.frames_dropped << ",\n";
   j << "  \"frames_lost\": " << st.frames_lost << ",\n";
+  j << "  \"frames_discarded\": " << st.frames_discarded << ",\n";
+  j << "  \"first_pose_seq\": " << st.first_pose_seq << ",\n";
   j << "  \"keyframes\": " << st.keyframes << ",\n";
   j << "  \"map_points\": " << st.map_points << ",\n";
   j << "  \"wall_time_s\": " << num(st.wall_time_s) << ",\n";
@@ -122,7 +124,9 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     j << (i ? ", " : "") << "{\"id\": " << g.id << ", \"frames\": " << g.frames
       << ", \"keyframes\": " << g.keyframes << ", \"first_seq\": " << g.first_seq
       << ", \"last_seq\": " << g.last_seq << ", \"trajectory\": " << json_string(g.trajectory)
-      << ", \"main\": " << (g.main ? "true" : "false") << ", \"merged_into\": " << g.merged_into;
+      << ", \"main\": " << (g.main ? "true" : "false")
+      << ", \"discarded\": " << (g.discarded ? "true" : "false")
+      << ", \"merged_into\": " << g.merged_into;
     if (g.merged_into >= 0) j << ", \"merged_at_seq\": " << g.merged_at_seq;
     if (i < info.accuracy_segments.size() && info.accuracy_segments[i].available) {
       const AccuracyReport& a = info.accuracy_segments[i];
@@ -187,6 +191,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"init_refusals\": " << tc.init_refusals
     << ", \"frames_oriented\": " << tc.frames_oriented
     << ", \"failed_starts\": " << tc.failed_starts
+    << ", \"discarded_starts\": " << tc.discarded_starts
     << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal) << ", \"init_refused\": {";
   for (std::size_t i = 1; i < tc.init_frame_refusals.size(); ++i) {
     j << (i > 1 ? ", " : "")
@@ -257,6 +262,7 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"culled_points\": " << st.culling.culled_points
     << ", \"culled_keyframes_at_capacity\": " << st.culling.capacity_keyframes
     << ", \"culled_points_at_capacity\": " << st.culling.capacity_points
+    << ", \"discarded_keyframes\": " << st.culling.discarded_keyframes
     << ", \"bad_points\": " << st.map.bad_points
     << ", \"reused_keyframe_slots\": " << st.map.reused_keyframe_slots
     << ", \"reused_point_slots\": " << st.map.reused_point_slots << ", \"culling_mean_ms\": "
@@ -404,7 +410,9 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << "  map segments:";
     for (const pipeline::SegmentStats& g : st.segments) {
       os << " " << g.id << ": " << g.frames << " frames";
-      if (g.merged_into >= 0) {
+      if (g.discarded) {
+        os << " (discarded: a failed start)";
+      } else if (g.merged_into >= 0) {
         os << " (merged into " << g.merged_into << " at frame " << g.merged_at_seq << ")";
       } else {
         os << " (" << g.trajectory << ")";

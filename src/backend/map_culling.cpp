@@ -129,6 +129,35 @@ bool MapCuller::remove(map::KeyframeId kf, CullingReport& rep) {
   return true;
 }
 
+int MapCuller::remove_discarded_segments() {
+  if (map_.discarded_segments() == 0) return 0;
+  const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
+  CullingReport rep;
+  remove_discarded(rep);
+  return rep.discarded_keyframes;
+}
+
+void MapCuller::remove_discarded(CullingReport& rep) {
+  if (map_.discarded_segments() == 0) return;
+  const int orphaned_before = rep.orphaned_points;
+  const map::KeyframeId n = map_.num_keyframes();
+  for (map::KeyframeId kf = 0; kf < n; ++kf) {
+    if (!map_.keyframe_is_live(kf) || !map_.segment_discarded(map_.keyframe_segment(kf))) {
+      continue;
+    }
+    std::uint32_t orphaned = 0;
+    if (map_.remove_keyframe(kf, static_cast<std::uint32_t>(opts_.point_min_observations),
+                             &orphaned)) {
+      ++rep.discarded_keyframes;
+      rep.orphaned_points += static_cast<int>(orphaned);
+    }
+  }
+  const auto orphaned = static_cast<std::uint64_t>(rep.orphaned_points - orphaned_before);
+  totals_.discarded_keyframes += static_cast<std::uint64_t>(rep.discarded_keyframes);
+  totals_.culled_points += orphaned;
+  totals_.orphaned_points += orphaned;
+}
+
 void MapCuller::cull_at_capacity(CullingReport& rep) {
   const map::MapOptions& mo = map_.options();
   const auto kf_limit =
@@ -202,9 +231,16 @@ void MapCuller::cull_at_capacity(CullingReport& rep) {
 
 CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   CullingReport rep;
-  if (!opts_.enabled) return rep;
+  if (!opts_.enabled && map_.discarded_segments() == 0) return rep;
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
   const auto t0 = platform::monotonic_now_ns();  // after the wait: `ms` is the work
+  remove_discarded(rep);
+  if (!opts_.enabled) {
+    rep.ms = platform::elapsed_ms(t0);
+    return rep;
+  }
+  const int orphaned_by_discard = rep.orphaned_points;  // already in the totals
+
   rep.culled_points = cull_points();
 
   const std::size_t nc = newest == map::kNoId ? 0 : map_.covisible_keyframes(newest, covis_);
@@ -221,8 +257,9 @@ CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   const std::uint64_t now = map_.keyframes_added();
   ++totals_.runs;
   totals_.culled_keyframes += static_cast<std::uint64_t>(rep.culled_keyframes);
-  totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points + rep.orphaned_points);
-  totals_.orphaned_points += static_cast<std::uint64_t>(rep.orphaned_points);
+  const int orphaned = rep.orphaned_points - orphaned_by_discard;
+  totals_.culled_points += static_cast<std::uint64_t>(rep.culled_points + orphaned);
+  totals_.orphaned_points += static_cast<std::uint64_t>(orphaned);
   totals_.capacity_keyframes += static_cast<std::uint64_t>(rep.capacity_keyframes);
   totals_.capacity_points += static_cast<std::uint64_t>(rep.capacity_points);
   totals_.total_ms += rep.ms;

@@ -29,6 +29,10 @@
 /// than `point_recent_keyframes`) are freed down to it. A run shorter than the capacity is not
 /// affected; a long one keeps its newest keyframes and the best-covered structure.
 ///
+/// Keyframes of a discarded segment (a failed start, Map::discard_segment) are removed on
+/// every pass, whatever the rules above, culling enabled or not; the newest keyframe of the
+/// map waits for the next pass (Map::remove_keyframe keeps it).
+///
 /// Bounded work per call: one pass over the point slots in use (a few array reads per slot)
 /// and, per covisible keyframe (at most map.max_covisible_per_keyframe), one pass over its
 /// keypoints and their points' observations; at capacity, one such pass over every live
@@ -113,12 +117,13 @@ struct CullingOptions {
 /// What one culling pass did.
 struct CullingReport {
   bool ran = false;
-  int checked_keyframes = 0;   ///< covisible keyframes examined for redundancy
-  int culled_keyframes = 0;    ///< keyframes removed
-  int culled_points = 0;       ///< points freed by the point rules (at capacity included)
-  int orphaned_points = 0;     ///< points freed because a removed keyframe left them too few views
-  int capacity_keyframes = 0;  ///< of culled_keyframes, removed at capacity
-  int capacity_points = 0;     ///< of culled_points, freed at capacity
+  int checked_keyframes = 0;    ///< covisible keyframes examined for redundancy
+  int culled_keyframes = 0;     ///< keyframes removed
+  int culled_points = 0;        ///< points freed by the point rules (at capacity included)
+  int orphaned_points = 0;      ///< points freed because a removed keyframe left them too few views
+  int capacity_keyframes = 0;   ///< of culled_keyframes, removed at capacity
+  int capacity_points = 0;      ///< of culled_points, freed at capacity
+  int discarded_keyframes = 0;  ///< keyframes of discarded segments removed (not in culled_*)
   double ms = 0.0;
 };
 
@@ -126,10 +131,11 @@ struct CullingReport {
 struct CullingTotals {
   std::uint64_t runs = 0;
   std::uint64_t culled_keyframes = 0;
-  std::uint64_t culled_points = 0;       ///< point rules + orphaned by keyframe removal
-  std::uint64_t orphaned_points = 0;     ///< of these, orphaned by keyframe removal
-  std::uint64_t capacity_keyframes = 0;  ///< keyframes removed at capacity
-  std::uint64_t capacity_points = 0;     ///< points freed at capacity
+  std::uint64_t culled_points = 0;        ///< point rules + orphaned by keyframe removal
+  std::uint64_t orphaned_points = 0;      ///< of these, orphaned by keyframe removal
+  std::uint64_t capacity_keyframes = 0;   ///< keyframes removed at capacity
+  std::uint64_t capacity_points = 0;      ///< points freed at capacity
+  std::uint64_t discarded_keyframes = 0;  ///< keyframes of discarded segments removed
   double total_ms = 0.0;
   double max_ms = 0.0;
 };
@@ -152,6 +158,9 @@ class MapCuller {
   /// One pass after keyframe `newest` was added (kNoId: culls points only). Takes the map's
   /// writer lock (the caller must not hold it).
   CullingReport spin_once(map::KeyframeId newest);
+  /// Removes the keyframes of discarded segments only (as spin_once does first), e.g. when a
+  /// segment's start was inserted or the run ends; returns how many. Takes the writer lock.
+  int remove_discarded_segments();
 
   /// Fraction of kf's map points that are redundant (see the file comment; 0 without
   /// points); the caller holds the map's writer lock (or is the only thread using the map).
@@ -173,6 +182,10 @@ class MapCuller {
   /// kf's lineage record (false: lineage off, or no live keyframe to carry it).
   bool parent_of(map::KeyframeId kf, CulledKeyframe& rec);
   void cull_at_capacity(CullingReport& rep);
+  // Removes the keyframes of discarded segments (Map::discard_segment; not a culling rule:
+  // done also when culling is disabled) into rep and the totals. No lineage: their frames
+  // are not re-anchored. The caller holds the writer lock.
+  void remove_discarded(CullingReport& rep);
 
   CullingOptions opts_;
   map::Map& map_;

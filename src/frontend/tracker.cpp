@@ -424,12 +424,12 @@ void Tracker::advance_state(TrackingResult& r) {
     last_tracked_T_c_w_ = T_c_w_;
     last_tracked_segment_ = segment_;
     last_tracked_median_depth_ = median_depth_;
-  } else if (!initialized_ && segments_started_ == 1) {
+  } else if (!initialized_ && !other_segment_kept()) {
     state_ = TrackerState::kInitializing;  // the first map: nothing to relocalize against
   } else {
     if (lost_frames_ == 0) {
       ++counters_.lost_spells;
-      count_failed_start(r);
+      if (count_failed_start(r) && opts_.init.discard_failed_starts) discard_failed_start(r);
     }
     ++lost_frames_;
     counters_.max_lost_frames = std::max(counters_.max_lost_frames, lost_frames_);
@@ -445,7 +445,9 @@ void Tracker::advance_state(TrackingResult& r) {
         start_new_segment(r.seq);
       }
     }
-    if (!initialized_) state_ = TrackerState::kNewSegment;
+    if (!initialized_) {
+      state_ = other_segment_kept() ? TrackerState::kNewSegment : TrackerState::kInitializing;
+    }
   }
   r.tracker_state = state_;
   r.segment = segment_;
@@ -455,12 +457,12 @@ void Tracker::advance_state(TrackingResult& r) {
   if (r.relocalization_request) ++counters_.relocalization_requests;
 }
 
-void Tracker::count_failed_start(const TrackingResult& r) {
-  if (!initialized_ || segment_ != start_segment_ || start_t_ns_ == 0) return;
+bool Tracker::count_failed_start(const TrackingResult& r) {
+  if (!initialized_ || segment_ != start_segment_ || start_t_ns_ == 0) return false;
   const double since_start_s = static_cast<double>(r.t_ns - start_t_ns_) * 1e-9;
   if (since_start_s >= opts_.init.failed_start_window_s ||
       start_keyframes_ > static_cast<std::uint32_t>(opts_.init.failed_start_max_keyframes)) {
-    return;
+    return false;
   }
   ++counters_.failed_starts;
   start_t_ns_ = 0;  // once per start
@@ -468,14 +470,32 @@ void Tracker::count_failed_start(const TrackingResult& r) {
       "frame %llu: lost %.2f s after the start of segment %u with %u keyframes: a "
       "failed start",
       static_cast<unsigned long long>(r.seq), since_start_s, unsigned{segment_}, start_keyframes_);
+  return true;
+}
+
+void Tracker::discard_failed_start(TrackingResult& r) {
+  // Its segment id is spent: without one left for the next start, the segment is kept.
+  if (segments_started_ >= opts_.max_segments || !map_.discard_segment(segment_)) return;
+  MER_LOG_INFO("frame %llu: segment %u discarded; initializing segment %u",
+               static_cast<unsigned long long>(r.seq), unsigned{segment_},
+               unsigned{segments_started_});
+  r.discarded_start = true;
+  r.discarded_segment = segment_;
+  ++counters_.discarded_starts;
+  ++segments_discarded_;
+  begin_next_segment();
 }
 
 void Tracker::start_new_segment(std::uint64_t seq) {
   MER_LOG_INFO("frame %llu: lost for %llu frames without relocalizing; starting map segment %u",
                static_cast<unsigned long long>(seq), static_cast<unsigned long long>(lost_frames_),
                unsigned{segments_started_});
-  segment_ = segments_started_++;
   ++counters_.new_segments;
+  begin_next_segment();
+}
+
+void Tracker::begin_next_segment() {
+  segment_ = segments_started_++;
   initialized_ = false;
   initializer_.drop_reference();
   have_pose_ = false;
@@ -566,7 +586,8 @@ void Tracker::reject_candidate() {
 
 bool Tracker::return_to_segment_of_hint() {
   const std::uint16_t seg = map_.keyframe_segment(hint_.keyframe);
-  if (seg == map::kNoSegment || map_.keyframe_generation(hint_.keyframe) != hint_.generation) {
+  if (seg == map::kNoSegment || map_.segment_discarded(seg) ||
+      map_.keyframe_generation(hint_.keyframe) != hint_.generation) {
     return false;
   }
   // The query's depth range: that keyframe's median keypoint depth (its segment's scale).
@@ -1086,7 +1107,7 @@ TrackingResult Tracker::spin_once(const hal::Frame& frame) {
     if (poll != StartPoll::kInserted) {
       if (poll == StartPoll::kPending) ++counters_.segment_start_waits;
       r.state = TrackState::kNotInitialized;
-      state_ = segments_started_ == 1 ? TrackerState::kInitializing : TrackerState::kNewSegment;
+      state_ = other_segment_kept() ? TrackerState::kNewSegment : TrackerState::kInitializing;
       r.tracker_state = state_;
       r.segment = segment_;
       return r;

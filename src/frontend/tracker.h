@@ -86,6 +86,7 @@ struct TrackerCounters {
   std::uint64_t segment_reference_seq = 0;  ///< reference frame of the latest segment's start
   std::uint64_t failed_starts = 0;          ///< starts lost within init.failed_start_window_s
                                             ///< with at most failed_start_max_keyframes
+  std::uint64_t discarded_starts = 0;  ///< of these, segments discarded (discard_failed_starts)
   bool initialized = false;
   std::uint64_t tracked = 0;
   std::uint64_t lost = 0;
@@ -205,11 +206,20 @@ class Tracker {
   void advance_state(TrackingResult& r);
   /// At the first lost frame of a spell: counts a failed start (TrackerCounters) when the
   /// latest start's segment is lost within init.failed_start_window_s of it with at most
-  /// init.failed_start_max_keyframes keyframes.
-  void count_failed_start(const TrackingResult& r);
+  /// init.failed_start_max_keyframes keyframes; true for such a failed start.
+  bool count_failed_start(const TrackingResult& r);
+  /// With init.discard_failed_starts: discards the failed start's segment (Map::
+  /// discard_segment; r says which) and initializes the next segment from the next frame.
+  /// Nothing done when no segment id is left or the segment is merging.
+  void discard_failed_start(TrackingResult& r);
+  /// Whether a segment other than the one tracked (or initialized) holds a map that was
+  /// not discarded: else initializing is the first map's (state initializing).
+  bool other_segment_kept() const { return segments_started_ - segments_discarded_ > 1; }
   /// Forgets the current segment's tracking state and initializes the next segment from the
   /// next frames (tracking.new_segments).
   void start_new_segment(std::uint64_t seq);
+  // Forgets the tracked segment's state; the next frames initialize segment segments_started_.
+  void begin_next_segment();
   /// Where a relocalizer's pose stands against the motion bound of the last tracked pose.
   enum class MotionBound : std::uint8_t {
     kWithin,   ///< a short loss, the pose within the bound: trusted at once
@@ -327,9 +337,10 @@ class Tracker {
   map::KeyframeId reloc_keyframe_ = map::kNoId;  // joins Q_T for the frame searched from a hint
   map::Generation reloc_generation_ = map::kNoGeneration;
   // Map segments (tracking.new_segments).
-  std::uint16_t segment_ = 0;           // segment of the map tracked in (or being initialized)
-  std::uint16_t segments_started_ = 1;  // segments this run has started
-  std::int64_t last_tracked_t_ns_ = 0;  // capture time of the last tracked frame
+  std::uint16_t segment_ = 0;             // segment of the map tracked in (or being initialized)
+  std::uint16_t segments_started_ = 1;    // segments this run has started
+  std::uint16_t segments_discarded_ = 0;  // of them, discarded as failed starts
+  std::int64_t last_tracked_t_ns_ = 0;    // capture time of the last tracked frame
   SE3d last_tracked_T_c_w_ = SE3d::Identity();  // and its pose, segment and median depth
   std::uint16_t last_tracked_segment_ = 0;
   double last_tracked_median_depth_ = 1.0;

@@ -113,6 +113,7 @@ struct InitOptions {
       0.5;  ///< a pure rotation keeping fewer of the reference's matches renews it (0: off)
   double failed_start_window_s = 1.0;  ///< a start lost within this time is a failed start, s
   int failed_start_max_keyframes = 5;  ///< ... if its segment has at most this many keyframes
+  bool discard_failed_starts = true;   ///< a failed start's segment is discarded, not kept
   bool plane_hints = false;            ///< break planar ties with an earlier frame's plane normals
   double max_plane_hint_reference_age_s =
       3.0;                    ///< time a reference is kept while it holds plane hints, s
@@ -150,6 +151,12 @@ struct InitOptions {
             "most keyframes a segment lost within failed_start_window_s of its start may have "
             "to count as a failed start",
             options::Range<int>{0, 1000000});
+    v.field("discard_failed_starts", discard_failed_starts,
+            "discard the segment of a failed start: its frames count as lost and leave the "
+            "trajectory files, its keyframes are removed from the map and are never "
+            "relocalized or closed a loop against, and the next start begins at once (the "
+            "first map: state initializing again). Off: the segment is kept and the tracker "
+            "relocalizes in it as after any loss");
     v.field("plane_hints", plane_hints,
             "break the two-fold tie of a planar scene with the plane normals an earlier frame "
             "of the same reference reported (off by default: on room_orbit it initializes "

@@ -123,9 +123,13 @@ struct TrackingResult {
   bool reloc_confirmed = false;    ///< confirmed on following frames (not trusted at once)
   float reloc_found_ratio = 0.0F;  ///< confirmed: lowest found share / usual share meanwhile
   std::uint16_t segment = 0;       ///< map segment whose world frame T_w_c is in (0: the first)
-  bool is_keyframe = false;        ///< this frame became a keyframe
-  bool keyframe_job = false;       ///< the keyframe still has to be created (queue a job)
-  SE3d T_w_c = SE3d::Identity();   ///< camera-to-world pose (valid when tracked)
+  /// This frame found the segment `discarded_segment` a failed start (tracking.init.
+  /// discard_failed_starts): the frames tracked in it count as lost from now on.
+  bool discarded_start = false;
+  std::uint16_t discarded_segment = 0;  ///< valid when discarded_start
+  bool is_keyframe = false;             ///< this frame became a keyframe
+  bool keyframe_job = false;            ///< the keyframe still has to be created (queue a job)
+  SE3d T_w_c = SE3d::Identity();        ///< camera-to-world pose (valid when tracked)
   /// Not tracked (no map yet), monocular: the frame is a pure rotation of the initializer's
   /// reference, and its orientation is known in the world of the chain of references it belongs
   /// to (the chain's first reference camera; frontend/initializer.h). Its position is not.

@@ -185,7 +185,11 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   if (!opts_.enabled || kf == map::kNoId) return rep;
   const auto t0 = platform::monotonic_now_ns();
   std::unique_lock<platform::PiMutex> lock(map_.writer_lock());
-  if (!map_.keyframe_is_live(kf) || kf >= db_.capacity()) return rep;
+  // A discarded segment's keyframe (a failed start) is never a loop's or a merge's.
+  if (!map_.keyframe_is_live(kf) || kf >= db_.capacity() ||
+      map_.segment_discarded(map_.keyframe_segment(kf))) {
+    return rep;
+  }
   const std::uint64_t serial = map_.keyframe_serial(kf);
   if (any_loop_ &&
       serial < last_loop_serial_ + static_cast<std::uint64_t>(opts_.cooldown_keyframes)) {
@@ -212,7 +216,10 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   const std::int64_t t_kf = map_.keyframe_t_ns(kf);
   const auto min_gap_ns = static_cast<std::int64_t>(opts_.min_time_gap_s * kNsPerS);
   for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
-    if (id == kf || !map_.keyframe_is_live(id)) continue;
+    if (id == kf || !map_.keyframe_is_live(id) ||
+        map_.segment_discarded(map_.keyframe_segment(id))) {
+      continue;
+    }
     // Another segment's keyframes are in an unrelated world frame: a match with one merges
     // the two segments (merge_segments), whenever they were made.
     if (map_.keyframe_segment(id) != segment) {

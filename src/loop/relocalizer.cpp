@@ -79,7 +79,8 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
       break;
     }
     const RetrievalHit& hit = hits_[h];
-    if (map_.keyframe_generation(hit.id) != hit.generation) continue;  // culled meanwhile
+    if (map_.keyframe_generation(hit.id) != hit.generation) continue;     // culled meanwhile
+    if (map_.segment_discarded(map_.keyframe_segment(hit.id))) continue;  // a failed start's
     ++r.candidates_tried;
 
     // 2. The candidate and its best covisible keyframes: descriptor matches, PnP-RANSAC.

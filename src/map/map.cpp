@@ -9,6 +9,10 @@ namespace mer::map {
 namespace {
 
 constexpr std::uint32_t kLow32Mask = 0xFFFFFFFFu;
+// A segment's fate (Map::fate_).
+constexpr std::uint8_t kFateLive = 0;
+constexpr std::uint8_t kFateMerged = 1;
+constexpr std::uint8_t kFateDiscarded = 2;
 
 std::uint64_t pack_edge(const CovisibleKeyframe& e) noexcept {
   return (static_cast<std::uint64_t>(e.id) << 32U) | e.weight;
@@ -66,6 +70,7 @@ Map::Map(const MapOptions& opts)
   for (std::uint32_t i = 0; i < kMaxSegments; ++i) {
     merged_into_[i].store(kNoSegment, std::memory_order_relaxed);
     start_state_[i].store(SegmentStartState::kPending, std::memory_order_relaxed);
+    fate_[i].store(kFateLive, std::memory_order_relaxed);
   }
 }
 
@@ -191,6 +196,13 @@ std::uint32_t Map::merge_segment(std::uint16_t from, std::uint16_t into,
       S_into_from.s <= 0.0) {
     return 0;
   }
+  // Claimed against a concurrent discard (the tracker's, lock-free): the first one wins.
+  std::uint8_t live = kFateLive;
+  if (!fate_[from].compare_exchange_strong(live, kFateMerged, std::memory_order_acq_rel) ||
+      fate_[into].load(std::memory_order_acquire) == kFateDiscarded) {
+    if (live == kFateLive) fate_[from].store(kFateLive, std::memory_order_release);
+    return 0;
+  }
   const geometry::Sim3d& S = S_into_from;
   const std::uint32_t nk = num_keyframes_.load(std::memory_order_relaxed);
   std::uint32_t moved = 0;
@@ -251,6 +263,20 @@ SegmentStartRecord Map::segment_start(std::uint16_t segment) const noexcept {
     return SegmentStartRecord{};
   }
   return starts_[segment];
+}
+
+bool Map::discard_segment(std::uint16_t segment) noexcept {
+  if (segment >= kMaxSegments) return false;
+  std::uint8_t live = kFateLive;
+  if (!fate_[segment].compare_exchange_strong(live, kFateDiscarded, std::memory_order_acq_rel)) {
+    return false;
+  }
+  discarded_count_.fetch_add(1, std::memory_order_acq_rel);
+  return true;
+}
+
+bool Map::segment_discarded(std::uint16_t segment) const noexcept {
+  return segment < kMaxSegments && fate_[segment].load(std::memory_order_acquire) == kFateDiscarded;
 }
 
 bool Map::segment_merge(std::uint16_t segment, SegmentMerge& out) const noexcept {

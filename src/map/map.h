@@ -280,9 +280,21 @@ class Map {
   /// correction of `from` (publish_correction), so a reader holding a pose of `from` moves it
   /// into the frame of `into` and then follows `into`. Returns the keyframes moved; 0 and
   /// nothing done for a segment id of kMaxSegments or more, from == into, a segment already
-  /// merged, or a non-finite similarity.
+  /// merged, a discarded one (discard_segment), or a non-finite similarity.
   std::uint32_t merge_segment(std::uint16_t from, std::uint16_t into,
                               const geometry::Sim3d& S_into_from);
+  /// Marks `segment` discarded (a failed start: tracking.init.discard_failed_starts), from any
+  /// thread, without the writer lock. A discarded segment's keyframes are never relocalized or
+  /// closed a loop against, map culling removes them, and it never merges. False (nothing
+  /// done) for an id of kMaxSegments or more, or a segment that is merging or merged: the
+  /// discard and merge_segment claim the segment atomically, the first one wins.
+  bool discard_segment(std::uint16_t segment) noexcept;
+  /// Whether `segment` was discarded (acquire; any thread); false for an id out of range.
+  bool segment_discarded(std::uint16_t segment) const noexcept;
+  /// Segments discarded so far (acquire; any thread).
+  std::uint32_t discarded_segments() const noexcept {
+    return discarded_count_.load(std::memory_order_acquire);
+  }
   /// Records that `segment`'s start is in the map (first and last keyframe; kInserted) or
   /// could not be inserted (kRefused, ids kNoId), once per segment, after its keyframes and
   /// points are written: a reader that sees the record (segment_start) sees them too.
@@ -593,6 +605,11 @@ class Map {
   std::unique_ptr<std::atomic<std::uint16_t>[]> merged_into_ =
       std::make_unique<std::atomic<std::uint16_t>[]>(kMaxSegments);
   std::unique_ptr<SegmentMerge[]> merges_ = std::make_unique<SegmentMerge[]>(kMaxSegments);
+  // kMaxSegments: SegmentFate of each one, claimed by compare-exchange from kLive (a discard
+  // by the tracker, a merge by the loop closer: whichever comes first).
+  std::unique_ptr<std::atomic<std::uint8_t>[]> fate_ =
+      std::make_unique<std::atomic<std::uint8_t>[]>(kMaxSegments);
+  std::atomic<std::uint32_t> discarded_count_{0};
   // kMaxSegments: each segment's start (state release-published after its keyframe ids).
   std::unique_ptr<std::atomic<SegmentStartState>[]> start_state_ =
       std::make_unique<std::atomic<SegmentStartState>[]>(kMaxSegments);

@@ -2,7 +2,9 @@
 /// @file output_stage.h
 /// The output stage: `spin_once(TrackingResult)` appends one frame's records to the output
 /// files. Files are opened before start (so errors surface early) and flushed every
-/// `flush_every` frames and at close, so a stop loses nothing already processed.
+/// `flush_every` frames and at close, so a stop loses nothing already processed. The stage
+/// only appends; after the run the pipeline rewrites the segment files once
+/// (segment_outputs.h: merged segments joined, discarded ones removed).
 ///
 /// Files (in the --output directory):
 /// - trajectory.txt  TUM `t tx ty tz qx qy qz qw`, camera-to-world, every frame tracked in

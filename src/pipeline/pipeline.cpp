@@ -253,6 +253,7 @@ Status Pipeline::run() {
   stats_.source = camera_.counters();
   Status c = output_.close();
   if (const Status k = close_keyframes_csv(); c.is_ok()) c = k;
+  (void)culler_->remove_discarded_segments();  // every stage has stopped
   if (c.is_ok()) c = join_segments();
   if (config_.pipeline.final_ba && stats_.frames_processed > 0) run_final_ba();
   const Status k = write_final_keyframes();
@@ -268,6 +269,7 @@ Status Pipeline::join_segments() {
     SegmentOutput g;
     g.id = static_cast<std::uint16_t>(i);
     g.frames = segment_stats_[i].frames;
+    g.discarded = segment_stats_[i].discarded;
     segment_outputs_.push_back(g);
   }
   return join_segment_files(output_dir_, merge_records(), segment_outputs_, main_segment_);
@@ -282,7 +284,12 @@ std::vector<SegmentMergeRecord> Pipeline::merge_records() const {
 }
 
 std::vector<double> Pipeline::segment_scales_into_main() const {
-  return segment_scales_into(merge_records(), main_segment_, segment_stats_.size());
+  std::vector<double> scales =
+      segment_scales_into(merge_records(), main_segment_, segment_stats_.size());
+  for (std::size_t i = 0; i < scales.size(); ++i) {
+    if (segment_stats_[i].discarded) scales[i] = 0.0;  // its frames are lost
+  }
+  return scales;
 }
 
 Pipeline::FinishedMap Pipeline::finished_map() {
@@ -291,6 +298,7 @@ Pipeline::FinishedMap Pipeline::finished_map() {
 
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
   // The main segment's: trajectory.txt's world frame (the other segments have their own).
+  if (map_->segment_discarded(main_segment_)) return {};  // no segment kept
   return resolve_keyframe_poses(map_->live_keyframe_poses(main_segment_), culler_->lineage());
 }
 
@@ -298,7 +306,8 @@ Status Pipeline::write_final_keyframes() const {
   if (output_dir_.empty()) return Status::ok();
   // Every stage has stopped: reading the map here races with nobody.
   // The main segment's keyframes, in trajectory.txt's world frame.
-  const std::vector<StampedPose> poses = map_->live_keyframe_poses(main_segment_);
+  std::vector<StampedPose> poses;
+  if (!map_->segment_discarded(main_segment_)) poses = map_->live_keyframe_poses(main_segment_);
   const std::string path = (std::filesystem::path(output_dir_) / "keyframes_final.txt").string();
   std::FILE* f = std::fopen(path.c_str(), "w");
   if (f == nullptr) return runtime_error("cannot write '" + path + "': " + std::strerror(errno));
@@ -335,9 +344,14 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
   stats_.backend_depth_edges = ba_->depth_edge_mode();
   stats_.allocs = {allocs_capture_, allocs_tracking_, allocs_output_};
   stats_.segments.clear();
+  stats_.first_pose_seq = -1;
   for (std::size_t i = 0; i < segment_stats_.size(); ++i) {
     SegmentStats g = segment_stats_[i];
     if (g.frames == 0) continue;
+    if (!g.discarded && (stats_.first_pose_seq < 0 ||
+                         g.first_seq < static_cast<std::uint64_t>(stats_.first_pose_seq))) {
+      stats_.first_pose_seq = static_cast<std::int64_t>(g.first_seq);
+    }
     g.id = static_cast<std::uint16_t>(i);
     g.keyframes = map_->live_keyframe_poses(g.id).size();
     g.trajectory = segment_file_name(g.id, false);
@@ -347,7 +361,7 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
       g.merged_into = o.merged_into;
       g.merged_at_seq = o.merged_at_seq;
     }
-    g.main = g.id == main_segment_;
+    g.main = !g.discarded && g.id == main_segment_;
     stats_.segments.push_back(g);
   }
   stats_.tracking_allocs_by_state.clear();
@@ -438,7 +452,10 @@ void Pipeline::optimize_and_cull(map::KeyframeId ba_kf, const geometry::Pinhole&
 
 void Pipeline::create_keyframe(const map::KeyframeJob& job) {
   const depth::KeyframeBuildReport rep = build_keyframe(job);
-  if (rep.segment_start) return;  // a segment's start: nothing to optimize or cull yet
+  if (rep.segment_start) {  // a segment's start: nothing to optimize or cull yet,
+    (void)culler_->remove_discarded_segments();  // but failed starts before it go
+    return;
+  }
   // Culling frees slots for the next keyframes; after a refused insertion (map full) it
   // still runs around the newest keyframe.
   optimize_and_cull(rep.ok ? rep.keyframe : map::kNoId, job.K, job.seq,
@@ -490,6 +507,15 @@ void Pipeline::count_state_allocs(const frontend::TrackingResult& r, std::uint64
 void Pipeline::count_result(const frontend::TrackingResult& r) {
   ++stats_.frames_processed;
   if (r.state != frontend::TrackState::kTracked) ++stats_.frames_lost;
+  if (r.discarded_start && r.discarded_segment < segment_stats_.size()) {
+    // A failed start: the frames it tracked count as lost (its file is dropped at the end).
+    SegmentStats& g = segment_stats_[r.discarded_segment];
+    if (!g.discarded) {
+      g.discarded = true;
+      stats_.frames_lost += g.frames;
+      stats_.frames_discarded += g.frames;
+    }
+  }
   if (r.state == frontend::TrackState::kTracked && r.segment < segment_stats_.size()) {
     SegmentStats& g = segment_stats_[r.segment];
     if (g.frames++ == 0) g.first_seq = r.seq;

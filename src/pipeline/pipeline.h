@@ -136,6 +136,8 @@ struct SegmentStats {
   int merged_into = -1;             ///< the segment it merged into (finally), -1: never merged
   std::uint64_t merged_at_seq = 0;  ///< frame of its merge
   bool main = false;                ///< the main segment (trajectory.txt)
+  bool discarded = false;           ///< a failed start (tracking.init.discard_failed_starts):
+                                    ///< its `frames` count as lost, it has no trajectory file
 };
 
 /// What relocalization did over a run (summary.json `relocalization`).
@@ -173,7 +175,11 @@ struct PipelineStats {
   std::uint64_t frames_in = 0;               ///< frames delivered by the source
   std::uint64_t frames_processed = 0;        ///< frames tracking ran on
   std::uint64_t frames_dropped = 0;          ///< frames evicted from the capture ring (threaded)
-  std::uint64_t frames_lost = 0;             ///< processed frames without a pose
+  std::uint64_t frames_lost = 0;             ///< processed frames without a pose (those of
+                                             ///< discarded segments included)
+  std::uint64_t frames_discarded = 0;        ///< of these, tracked in a discarded segment
+  std::int64_t first_pose_seq = -1;          ///< first frame tracked in a segment that was
+                                             ///< not discarded (-1: none)
   std::uint64_t keyframes = 0;               ///< keyframes alive in the map at the end
   std::uint64_t keyframes_deferred = 0;      ///< keyframe decisions retried: every job slot busy
   std::uint64_t loop_queue_full = 0;         ///< threaded: keyframes not checked for a loop,

@@ -98,10 +98,19 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
   if (segments.empty()) return Status::ok();
   // Frames of each segment after merging, and where each merged segment ended up.
   std::map<std::uint16_t, std::uint64_t> frames;
-  for (const SegmentOutput& g : segments) frames[g.id] = g.frames;
+  bool any_discarded = false;
+  for (const SegmentOutput& g : segments) {
+    frames[g.id] = g.discarded ? 0 : g.frames;
+    any_discarded = any_discarded || g.discarded;
+  }
   std::map<std::uint16_t, int> merged_into;
   std::map<std::uint16_t, std::uint64_t> merged_at;
+  auto discarded = [&](std::uint16_t id) {
+    return std::any_of(segments.begin(), segments.end(),
+                       [id](const SegmentOutput& g) { return g.id == id && g.discarded; });
+  };
   for (const SegmentMergeRecord& m : merges) {
+    if (discarded(m.from) || discarded(m.into)) continue;  // (the map refuses such merges)
     frames[m.into] += frames[m.from];
     frames[m.from] = 0;
     merged_at.emplace(m.from, m.seq);
@@ -118,7 +127,12 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
       main = id;
     }
   }
-  if (dir.empty() || (merges.empty() && main == 0)) return Status::ok();  // as written
+  if (dir.empty() || (merges.empty() && main == 0 && !any_discarded)) {
+    for (SegmentOutput& g : segments) {
+      if (g.discarded) g.trajectory.clear();
+    }
+    return Status::ok();  // as written
+  }
 
   const std::filesystem::path d(dir);
   // Frames (and keyframes) of each segment, in its own frame, as the run wrote them.
@@ -139,6 +153,7 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
                      [](const PoseLine& a, const PoseLine& b) { return a.t_ns < b.t_ns; });
   };
   for (const SegmentMergeRecord& m : merges) {
+    if (discarded(m.from) || discarded(m.into)) continue;
     join(traj[m.from], traj[m.into], m.sim_into_from);
     join(kfs[m.from], kfs[m.into], m.sim_into_from);
   }
@@ -148,7 +163,9 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
     return segment_file_name(id, keyframes);
   };
   for (SegmentOutput& g : segments) {
-    if (const auto it = merged_into.find(g.id); it != merged_into.end()) {
+    if (g.discarded) {
+      g.trajectory.clear();
+    } else if (const auto it = merged_into.find(g.id); it != merged_into.end()) {
       g.merged_into = it->second;
       g.merged_at_seq = merged_at[g.id];
       g.trajectory = name(static_cast<std::uint16_t>(it->second), false);
@@ -158,11 +175,20 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
   }
   // Write every surviving segment under its new name, then remove what no segment owns.
   std::vector<std::string> written;
+  bool main_kept = false;
   for (const SegmentOutput& g : segments) {
-    if (merged_into.contains(g.id)) continue;
+    if (merged_into.contains(g.id) || g.discarded) continue;
+    main_kept = main_kept || g.id == main;
     for (const bool k : {false, true}) {
       const std::string n = name(g.id, k);
       if (Status s = write_lines(d / n, k ? kfs[g.id] : traj[g.id]); !s.is_ok()) return s;
+      written.push_back(n);
+    }
+  }
+  if (!main_kept) {  // no segment kept: trajectory.txt and keyframes.txt stay, empty
+    for (const bool k : {false, true}) {
+      const std::string n = segment_file_name(0, k);
+      if (Status s = write_lines(d / n, {}); !s.is_ok()) return s;
       written.push_back(n);
     }
   }

@@ -7,7 +7,9 @@
 /// frames after merging; segment 0 on a tie), each segment that never merged keeps its own
 /// `trajectory_segment_N.txt` (segment 0, when it is not the main one, `..._segment_0.txt`)
 /// and the files of merged segments are removed. Runs after the output stage closed its files;
-/// without a merge nothing is rewritten.
+/// without a merge nothing is rewritten. A discarded segment (a failed start) is never the
+/// main one and its files are removed (segment 0's: trajectory.txt then holds the main
+/// segment, or nothing when no segment was kept).
 
 #include <cstdint>
 #include <span>
@@ -33,7 +35,8 @@ struct SegmentOutput {
   std::uint64_t frames = 0;         ///< frames tracked in it (by id, as run)
   int merged_into = -1;             ///< the segment it finally joined, -1 if none
   std::uint64_t merged_at_seq = 0;  ///< frame of its (first) merge
-  std::string trajectory;           ///< file holding its frames after merging
+  bool discarded = false;           ///< a failed start: its frames are not written
+  std::string trajectory;           ///< file holding its frames after merging ("" if discarded)
 };
 
 /// File names a segment's frames are written to during the run (`trajectory`: trajectory or

@@ -8,7 +8,9 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
@@ -491,9 +493,12 @@ TEST(MerSlamSynthetic, PureRotationReportsOrientationsAndNoMap) {
 
 // A start lost within init.failed_start_window_s (1 s) of itself with at most
 // init.failed_start_max_keyframes (5) keyframes is a failed start: summary.json counts one per
-// such segment. room_rotation seed 2 starts at frame 252 on a false essential pair (10 deg
-// of parallax between consecutive frames of a rotation) and is lost at the next frame.
-TEST(MerSlamSynthetic, StartsLostAtOnceAreCountedAsFailed) {
+// such segment, and the segment is discarded (tracking.init.discard_failed_starts): its frames
+// count as lost, no trajectory file holds them, its keyframes leave the map, and the next
+// frames initialize the first map again. room_rotation seed 2 starts at frame 252 on a false
+// essential pair (10 deg of parallax between consecutive frames of a rotation) and is lost at
+// the next frame (and, restarted at once, makes more such starts).
+TEST(MerSlamSynthetic, StartsLostAtOnceAreDiscarded) {
   const auto d = fresh_dir("mer_e2e_failed_start");
   const auto cfg = write_config(
       d, "rotation.yaml",
@@ -521,6 +526,60 @@ TEST(MerSlamSynthetic, StartsLostAtOnceAreCountedAsFailed) {
   }
   EXPECT_GE(short_lost, 1) << "the reproduction no longer fails its start";
   EXPECT_EQ(static_cast<int>(s["tracking"]["failed_starts"]), short_lost);
+  EXPECT_EQ(static_cast<int>(s["tracking"]["discarded_starts"]), short_lost);
+
+  // Each discarded segment: flagged, no file, keyframes gone; its frames are lost.
+  int discarded = 0;
+  int discarded_frames = 0;
+  int kept_frames = 0;
+  int first_kept = -1;
+  int discarded_keyframes_left = 0;
+  std::vector<int> discarded_last;
+  for (const cv::FileNode& g : s["segments"]) {
+    const int id = static_cast<int>(g["id"]);
+    const int n = static_cast<int>(g["frames"]);
+    if (static_cast<int>(g["discarded"]) == 0) {
+      kept_frames += n;
+      const int first = static_cast<int>(g["first_seq"]);
+      if (first_kept < 0 || first < first_kept) first_kept = first;
+      continue;
+    }
+    ++discarded;
+    discarded_frames += n;
+    discarded_last.push_back(static_cast<int>(g["last_seq"]));
+    EXPECT_EQ(static_cast<std::string>(g["trajectory"]), "") << "segment " << id;
+    EXPECT_FALSE(static_cast<int>(g["main"]) != 0) << "segment " << id;
+    discarded_keyframes_left += static_cast<int>(g["keyframes"]);
+    if (id > 0) {
+      EXPECT_FALSE(
+          std::filesystem::exists(d / ("trajectory_segment_" + std::to_string(id) + ".txt")));
+    }
+  }
+  EXPECT_EQ(discarded, short_lost);
+  // Their keyframes left the map, but for the map's newest one (never removed) when no
+  // segment was started after them.
+  EXPECT_LE(discarded_keyframes_left, 1);
+  EXPECT_EQ(static_cast<int>(s["frames_discarded"]), discarded_frames);
+  EXPECT_EQ(static_cast<int>(s["frames_lost"]), frames - kept_frames);
+  EXPECT_EQ(static_cast<int>(s["first_pose_seq"]), first_kept);
+  // trajectory.txt holds the main segment's frames only (or none).
+  int main_frames = 0;
+  for (const cv::FileNode& g : s["segments"]) {
+    if (static_cast<int>(g["main"]) != 0) main_frames = static_cast<int>(g["frames"]);
+  }
+  EXPECT_EQ(count_lines((d / "trajectory.txt").string()), main_frames);
+  // The frame that loses a failed start discards it and initializes again: the first map
+  // when no other segment was kept before it (initializing), not a lost or new-segment state.
+  const std::string csv = read_text((d / "frames.csv").string());
+  for (const int last : discarded_last) {
+    const std::string key = "\n" + std::to_string(last + 1) + ",";
+    const std::size_t at = csv.find(key);
+    ASSERT_NE(at, std::string::npos) << "frame " << last + 1;
+    const std::string row = csv.substr(at + 1, csv.find('\n', at + 1) - at - 1);
+    if (first_kept < 0 || first_kept > last) {
+      EXPECT_NE(row.find(",initializing"), std::string::npos) << row;
+    }
+  }
 }
 
 // SIGINT mid-run: exit 0, summary says so, and every processed frame is in the files.

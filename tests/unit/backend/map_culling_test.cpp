@@ -39,7 +39,7 @@ CullingOptions rules_off() {
 }
 
 /// Adds a keyframe of kKeypoints keypoints, all on pyramid `level`.
-map::KeyframeId add_kf(map::Map& m, int level = 0) {
+map::KeyframeId add_kf(map::Map& m, int level = 0, std::uint16_t segment = 0) {
   std::vector<features::Keypoint> kps(kKeypoints);
   std::vector<features::Descriptor> descs(kKeypoints);
   for (int i = 0; i < kKeypoints; ++i) {
@@ -55,6 +55,7 @@ map::KeyframeId add_kf(map::Map& m, int level = 0) {
   in.T_w_c.translation() = Eigen::Vector3d(0.1 * static_cast<double>(in.seq), 0.0, 0.0);
   in.keypoints = kps;
   in.descriptors = descs;
+  in.segment = segment;
   const Result<map::KeyframeId> r = m.add_keyframe(in);
   EXPECT_TRUE(r.is_ok()) << r.status().message();
   return r.is_ok() ? r.value() : map::kNoId;
@@ -286,6 +287,41 @@ TEST(MapCulling, DisabledDoesNothingAndAutoResolvesByDepth) {
   EXPECT_EQ(autos.point_min_observations, 0);
   EXPECT_EQ(MapCuller(autos, m, false).options().point_min_observations, 3);
   EXPECT_EQ(MapCuller(autos, m, true).options().point_min_observations, 1);
+}
+
+// The keyframes of a discarded segment (a failed start) go on the next pass, culling on or
+// off, without a lineage (their frames are lost, not re-anchored); points only they saw go
+// with them. The map's newest keyframe waits for a later pass.
+TEST(MapCulling, DiscardedSegmentsKeyframesAreRemoved) {
+  map::Map m(map_options(16, 200));
+  const map::KeyframeId a = add_kf(m);
+  const map::KeyframeId b = add_kf(m);
+  const map::KeyframeId d1 = add_kf(m, 0, 1);
+  const map::KeyframeId d2 = add_kf(m, 0, 1);
+  const map::PointId own = add_point(m, {d1, d2}, 0);
+  const map::PointId kept = add_point(m, {a, b}, 1);
+  CullingOptions o = rules_off();
+  o.enabled = false;
+  MapCuller c(o, m);
+  EXPECT_FALSE(c.spin_once(b).ran);  // nothing discarded: culling off does nothing
+  ASSERT_TRUE(m.discard_segment(1));
+  CullingReport rep = c.spin_once(b);
+  // d2 is the map's newest keyframe: kept for now.
+  EXPECT_EQ(rep.discarded_keyframes, 1);
+  EXPECT_FALSE(m.keyframe_is_live(d1));
+  EXPECT_TRUE(m.keyframe_is_live(d2));
+  const map::KeyframeId e = add_kf(m);
+  rep = c.spin_once(e);
+  EXPECT_EQ(rep.discarded_keyframes, 1);
+  EXPECT_EQ(rep.culled_keyframes, 0);
+  EXPECT_FALSE(m.keyframe_is_live(d2));
+  map::PointView v;
+  EXPECT_FALSE(m.read_point(own, v));
+  EXPECT_TRUE(m.read_point(kept, v));
+  for (const map::KeyframeId k : {a, b, e}) EXPECT_TRUE(m.keyframe_is_live(k)) << k;
+  EXPECT_EQ(c.totals().discarded_keyframes, 2U);
+  EXPECT_EQ(c.totals().culled_keyframes, 0U);
+  EXPECT_TRUE(c.lineage().empty());
 }
 
 TEST(MapCulling, EveryOptionHasADocLineAndRange) {

@@ -1051,6 +1051,43 @@ TEST(Map, MergeSegmentMovesKeyframesAndPointsIntoTheOlderFrame) {
   EXPECT_LT((S * (S_1_0 * p) - p).norm(), 1e-9);
   EXPECT_EQ(m.merged_segment(1, S), 0U);
   EXPECT_LT((S * (S_1_0 * p) - p).norm(), 1e-9);
+  // A merged segment cannot be discarded any more (the merge claimed it first).
+  EXPECT_FALSE(m.discard_segment(1));
+  EXPECT_FALSE(m.segment_discarded(1));
+}
+
+// A discarded segment (a failed start) is flagged for every reader, counted once, and never
+// merges, neither from nor into; a segment merges or is discarded, whichever comes first.
+TEST(Map, DiscardedSegmentNeverMerges) {
+  Map m(small_options());
+  const KfData d = make_kf(8, 1);
+  KeyframeInput a = d.input(SE3d::Identity(), 1);
+  KeyframeInput b = d.input(SE3d::Identity(), 2);
+  KeyframeInput c = d.input(SE3d::Identity(), 3);
+  b.segment = 1;
+  c.segment = 2;
+  ASSERT_TRUE(m.add_keyframe(a).is_ok());
+  ASSERT_TRUE(m.add_keyframe(b).is_ok());
+  ASSERT_TRUE(m.add_keyframe(c).is_ok());
+  EXPECT_EQ(m.discarded_segments(), 0U);
+  EXPECT_FALSE(m.segment_discarded(1));
+  EXPECT_TRUE(m.discard_segment(1));
+  EXPECT_FALSE(m.discard_segment(1));  // once
+  EXPECT_FALSE(m.discard_segment(kMaxSegments));
+  EXPECT_TRUE(m.segment_discarded(1));
+  EXPECT_FALSE(m.segment_discarded(0));
+  EXPECT_FALSE(m.segment_discarded(kMaxSegments));
+  EXPECT_EQ(m.discarded_segments(), 1U);
+  const geometry::Sim3d I;
+  std::lock_guard<platform::PiMutex> lock(m.writer_lock());
+  EXPECT_EQ(m.merge_segment(1, 0, I), 0U);  // from a discarded segment
+  EXPECT_EQ(m.merge_segment(2, 1, I), 0U);  // into a discarded segment
+  SegmentMerge rec;
+  EXPECT_FALSE(m.segment_merge(1, rec));
+  EXPECT_FALSE(m.segment_merge(2, rec));
+  // The refused merge into 1 left segment 2 free to merge elsewhere.
+  EXPECT_EQ(m.merge_segment(2, 0, I), 1U);
+  EXPECT_EQ(m.keyframe_segment(2), 0U);
 }
 
 }  // namespace mer::map

@@ -153,6 +153,54 @@ TEST_F(SegmentOutputs, SegmentZeroLargestAndNoMergeLeavesTheFiles) {
   EXPECT_EQ(segs[1].trajectory, "trajectory_segment_1.txt");
 }
 
+SegmentOutput discarded(std::uint16_t id, std::uint64_t frames) {
+  SegmentOutput g = seg(id, frames);
+  g.discarded = true;
+  return g;
+}
+
+// Discarded segments (failed starts) are never the main one, however many frames they had,
+// and their files go: trajectory.txt holds the kept segment.
+TEST_F(SegmentOutputs, DiscardedSegmentsLeaveTheirFilesAndAreNeverMain) {
+  const SE3d a = pose(0.0, 1.0, 2.0, 3.0);
+  const SE3d b = pose(1.0, -1.0, 0.0, 0.5);
+  write("trajectory.txt", {{1 * kS, a}, {2 * kS, a}, {3 * kS, a}, {4 * kS, a}, {5 * kS, a}});
+  write("keyframes.txt", {{1 * kS, a}});
+  write("trajectory_segment_1.txt", {{6 * kS, b}, {7 * kS, b}});
+  write("keyframes_segment_1.txt", {{6 * kS, b}});
+  write("trajectory_segment_2.txt", {{8 * kS, a}, {9 * kS, a}, {10 * kS, a}, {11 * kS, a}});
+  write("keyframes_segment_2.txt", {{8 * kS, a}});
+  std::vector<SegmentOutput> segs{discarded(0, 5), seg(1, 2), discarded(2, 4)};
+  std::uint16_t main = 99;
+  ASSERT_TRUE(join_segment_files(dir_.string(), {}, segs, main).is_ok());
+  EXPECT_EQ(main, 1);
+  const std::vector<StampedPose> t = read("trajectory.txt");
+  ASSERT_EQ(t.size(), 2U);
+  EXPECT_EQ(t[0].t_ns, 6 * kS);
+  EXPECT_EQ(read("keyframes.txt").size(), 1U);
+  for (const char* gone :
+       {"trajectory_segment_0.txt", "keyframes_segment_0.txt", "trajectory_segment_1.txt",
+        "keyframes_segment_1.txt", "trajectory_segment_2.txt", "keyframes_segment_2.txt"}) {
+    EXPECT_FALSE(fs::exists(dir_ / gone)) << gone;
+  }
+  EXPECT_EQ(segs[0].trajectory, "");
+  EXPECT_EQ(segs[1].trajectory, "trajectory.txt");
+  EXPECT_EQ(segs[2].trajectory, "");
+}
+
+// No segment kept: trajectory.txt and keyframes.txt stay, empty.
+TEST_F(SegmentOutputs, NoKeptSegmentLeavesEmptyTrajectoryFiles) {
+  write("trajectory.txt", {{1 * kS, pose(0, 0, 0, 0)}, {2 * kS, pose(0, 1, 0, 0)}});
+  write("keyframes.txt", {{1 * kS, pose(0, 0, 0, 0)}});
+  std::vector<SegmentOutput> segs{discarded(0, 2)};
+  std::uint16_t main = 99;
+  ASSERT_TRUE(join_segment_files(dir_.string(), {}, segs, main).is_ok());
+  ASSERT_TRUE(fs::exists(dir_ / "trajectory.txt"));
+  EXPECT_EQ(fs::file_size(dir_ / "trajectory.txt"), 0U);
+  EXPECT_EQ(fs::file_size(dir_ / "keyframes.txt"), 0U);
+  EXPECT_EQ(segs[0].trajectory, "");
+}
+
 // A damaged segment file is an error naming it and its line; the files written by the run
 // are left as they were.
 TEST_F(SegmentOutputs, DamagedFileIsNamedAndNothingIsLost) {
