@@ -42,7 +42,6 @@
 
 #include <array>
 #include <atomic>
-#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -266,17 +265,43 @@ class LocalBundleAdjuster {
   }
 
  private:
-  struct Workspace;  // what a run builds, kept for the next (local_ba.cpp)
+  struct Workspace;  // what a run builds, kept for the next (local_ba_run.h)
+  struct Run;        // what the steps of one run share (local_ba_run.h)
 
   /// Starts a run: clears the abort request and the iteration count, releases what the
-  /// previous run built; returns the run's start time.
-  std::chrono::steady_clock::time_point begin_run();
-  /// `t0`: from begin_run. `lock` holds the writer lock on entry; released while Ceres solves,
-  /// held on return. `resolve`: solve again once the outliers are removed.
+  /// previous run built; returns the run's start time (platform::monotonic_now_ns).
+  std::int64_t begin_run();
+  /// `t0_ns`: from begin_run. `lock` holds the writer lock on entry; released while Ceres
+  /// solves, held on return. `resolve`: solve again once the outliers are removed. The steps
+  /// below, in this order (local_ba_steps.cpp).
   LocalBaReport optimize(const std::vector<map::KeyframeId>& window, const geometry::Pinhole& K,
-                         int max_iterations, bool budgeted,
-                         std::chrono::steady_clock::time_point t0,
+                         int max_iterations, bool budgeted, std::int64_t t0_ns,
                          std::unique_lock<platform::PiMutex>& lock, bool cull_points, bool resolve);
+  /// 1-2. Reads the window's poses, the points they see and the fixed keyframes that see the
+  /// most of them (or fixes the oldest window keyframe: the gauge). False with fewer than two
+  /// poses (nothing to optimize).
+  bool load_window(Run& run, const std::vector<map::KeyframeId>& window);
+  /// Reads keyframe `id`'s pose into the window (`fixed`: held constant); false when it is
+  /// not live, already in the window or the window is full.
+  bool load_pose(map::KeyframeId id, bool fixed);
+  /// 3. The residual blocks of every observation by a window pose, the poses' manifolds and
+  /// constant blocks.
+  void build_problem(Run& run, const geometry::Pinhole& K);
+  /// The solver options and elimination ordering, then the first solve (Run::solver).
+  /// False when the run was stopped before it.
+  bool first_solve(Run& run, int max_iterations, std::size_t window_keyframes);
+  /// One Ceres solve with the run's options, polled.
+  void solve(Run& run);
+  /// 4. Outliers classified (for the write-back's culling), and with `resolve` removed and
+  /// solved again within what the budget leaves.
+  void remove_outliers(Run& run, bool resolve);
+  /// 5. The optimized poses and points into the map, under the writer lock again; the run's
+  /// report completed.
+  void write_back(Run& run, bool cull_points);
+  /// The report of a run stopped (aborted or out of time) before a solve: the map untouched.
+  LocalBaReport stopped_early(Run& run) const;
+  /// Seconds of the run's budget left.
+  double remaining_s(const Run& run) const;
 
   LocalBaOptions opts_;
   map::Map& map_;
