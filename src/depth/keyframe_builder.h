@@ -117,6 +117,21 @@ class KeyframeBuilder {
   const map::KeyframeJob& resolve_merged_segment(const map::KeyframeJob& tracked);
   /// Writes a segment's start (kind kSegmentStart) and publishes it. Writer-lock holders only.
   KeyframeBuildReport insert_segment_start(const map::KeyframeJob& job);
+  // The steps of spin_once, in order (keyframe_builder.cpp).
+  /// The job's keypoints and tracked points into kps_ / ids_ (points culled since: none).
+  void load_job(const map::KeyframeJob& job);
+  /// The neighbours as depth views, the request and the backend's depth (depth_, confidence_,
+  /// supports); rep gets the neighbours, valid depths and keypoint fates.
+  DepthResult infer_depth(const map::KeyframeJob& job, KeyframeBuildReport& rep);
+  /// Scales depth_ into map units by the tracked points (a backend of unknown scale).
+  void align_depth_scale(const map::KeyframeJob& job, KeyframeBuildReport& rep);
+  /// Adds the keyframe with its local depth; kNoId (counted, logged) when the map refuses.
+  map::KeyframeId insert_keyframe(const map::KeyframeJob& job);
+  /// The tracked points' observations, new points from confident depth, their refinement
+  /// and covisibility, the photometric anchors.
+  void add_structure(const map::KeyframeJob& job, map::KeyframeId kf, const DepthResult& out,
+                     KeyframeBuildReport& rep);
+  void add_to_totals(const KeyframeBuildReport& rep, double ms);
   /// The newest live keyframe of `segment` (kNoId when it has none yet).
   map::KeyframeId newest_in_segment(std::uint16_t segment) const;
   void pick_neighbours(const map::KeyframeJob& job);
@@ -127,7 +142,8 @@ class KeyframeBuilder {
   // Whether point keep's position reprojects within the chi2 gate onto every keypoint that
   // observes point drop (a merge must not bend any observation).
   bool explains_observations(std::uint32_t keep, std::uint32_t drop, const geometry::Pinhole& K);
-  // depth.align_keypoints. The new keyframe's pyramid goes into the ring of recent keyframe
+  // depth.align_keypoints (keyframe_alignment.cpp). The new keyframe's pyramid goes into the
+  // ring of recent keyframe
   // images; its keypoints of points with an anchor are aligned to the anchor before
   // insertion; after it every point of the keyframe without an anchor (new points among
   // them) gets one here, and the new points' observations in older keyframes still in the
