@@ -29,4 +29,14 @@ std::uint64_t total_allocations() noexcept;
 /// True only when the counting operator new replacement is linked into this program.
 bool counter_linked() noexcept;
 
+/// Counts the calling thread's heap allocations across one unit of work (from construction).
+class Scope {
+ public:
+  Scope() : start_(thread_allocations()) {}
+  std::uint64_t delta() const { return thread_allocations() - start_; }
+
+ private:
+  std::uint64_t start_;
+};
+
 }  // namespace mer::platform::alloc

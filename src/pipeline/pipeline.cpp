@@ -21,26 +21,6 @@ namespace {
 
 constexpr double kMsToNs = 1e6;
 constexpr double kNsToS = 1e-9;
-constexpr std::int64_t kIdleWaitNs = 20'000'000;     // consumer re-checks stop flags this often
-constexpr std::int64_t kPoolRetryNs = 1'000'000;     // back-off when every buffer is in use
-constexpr std::int64_t kBackendRetryNs = 1'000'000;  // depth thread: back-end queue full
-
-/// What the depth thread hands to the back-end thread after each keyframe job.
-struct BackendJob {
-  map::KeyframeId kf = map::kNoId;                  ///< inserted keyframe, or the newest one
-  map::Generation generation = map::kNoGeneration;  ///< kf's occupant when queued
-  bool inserted = false;                            ///< kf was inserted by this job: run BA
-  std::uint64_t seq = 0;                            ///< frame of the job (latency trace)
-  geometry::Pinhole K;                              ///< intrinsics the frame was tracked with
-};
-
-/// Back-end work after draining its queue: local BA around the newest inserted keyframe,
-/// culling around the newest keyframe of any job.
-struct BackendBatch {
-  BackendJob ba;    ///< newest job that inserted a keyframe (ba.inserted false: none)
-  BackendJob cull;  ///< newest job
-  int skipped = 0;  ///< inserted keyframes drained without their own BA run
-};
 
 std::int64_t ms_to_ns(double ms) {
   return static_cast<std::int64_t>(ms * kMsToNs);
@@ -60,40 +40,6 @@ StageLatency summarize(const platform::LatencyRecorder& r) {
   s.budget_ms = static_cast<double>(r.budget_ns()) / kMsToNs;
   s.overruns = r.overruns();
   return s;
-}
-
-/// Counts heap allocations of the calling thread across one unit of work.
-class AllocScope {
- public:
-  AllocScope() : start_(platform::alloc::thread_allocations()) {}
-  std::uint64_t delta() const { return platform::alloc::thread_allocations() - start_; }
-
- private:
-  std::uint64_t start_;
-};
-
-/// Generic consumer loop of a threaded stage: pops inputs with `pop(In&)` and hands them to
-/// `work(In&)`; sleeps on `wake` when idle; ends when `upstream_done` is set and the input
-/// is drained.
-template <typename In, typename PopFn, typename WorkFn>
-void consume_loop(platform::Notifier& wake, const std::atomic<bool>& upstream_done, PopFn&& pop,
-                  WorkFn&& work) {
-  In item{};
-  while (true) {
-    const std::uint32_t epoch = wake.epoch();
-    if (pop(item)) {
-      work(item);
-      continue;
-    }
-    if (upstream_done.load(std::memory_order_acquire)) {
-      if (pop(item)) {  // a last item pushed before the flag
-        work(item);
-        continue;
-      }
-      return;
-    }
-    (void)wake.wait_for(epoch, kIdleWaitNs);
-  }
 }
 
 }  // namespace
@@ -555,7 +501,7 @@ Status Pipeline::run_lockstep() {
     }
     // capture
     hal::FrameHandle frame;
-    AllocScope cap_allocs;
+    platform::alloc::Scope cap_allocs;
     const hal::AcquireStatus st = camera_.acquire(frame, timeout_ns);
     const std::uint64_t cap_delta = cap_allocs.delta();
     if (st == hal::AcquireStatus::kEndOfStream) {
@@ -582,7 +528,7 @@ Status Pipeline::run_lockstep() {
     lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
 
     // tracking
-    AllocScope trk_allocs;
+    platform::alloc::Scope trk_allocs;
     const std::int64_t t_trk = platform::monotonic_now_ns();
     frontend::TrackingResult r = tracker_->spin_once(*frame);
     const std::int64_t t_done = platform::monotonic_now_ns();
@@ -608,7 +554,7 @@ Status Pipeline::run_lockstep() {
     frame.reset();
 
     // output
-    AllocScope out_allocs;
+    platform::alloc::Scope out_allocs;
     const std::int64_t out_ns = output_.spin_once(r, t_done - r.t_ready_ns);
     lat_output_->record(r.seq, t_done, out_ns);
     if (steady) {
@@ -629,331 +575,5 @@ Status Pipeline::run_lockstep() {
 }
 
 // ---- Threaded --------------------------------------------------------------------------
-
-Status Pipeline::run_threaded() {
-  const platform::BoardThreads threads = resolve_threads();
-  const auto timeout_ns =
-      static_cast<std::int64_t>(config_.pipeline.acquire_timeout_ms) * 1'000'000;
-  const auto warmup = static_cast<std::uint64_t>(config_.telemetry.warmup_frames);
-  hal::FramePool& pool = camera_.pool();
-
-  // Rings and wake-ups live on this stack frame; the threads are joined before it unwinds.
-  auto capture_ring = std::make_unique<platform::OverwriteRing<std::uint32_t, kCaptureRingSize>>();
-  auto result_ring =
-      std::make_unique<platform::SpscRing<frontend::TrackingResult, kResultRingSize>>();
-  platform::Notifier capture_wake;
-  platform::Notifier result_wake;
-  auto job_ring = std::make_unique<platform::SpscRing<std::uint32_t, 2 * kKeyframeJobs>>();
-  auto free_ring = std::make_unique<platform::SpscRing<std::uint32_t, 2 * kKeyframeJobs>>();
-  for (std::uint32_t i = 0; i < kKeyframeJobs; ++i) (void)free_ring->try_push(i);
-  platform::Notifier job_wake;
-  auto backend_ring = std::make_unique<platform::SpscRing<BackendJob, kBackendQueue>>();
-  platform::Notifier backend_wake;
-  auto loop_ring = std::make_unique<platform::SpscRing<BackendJob, kLoopQueue>>();
-  platform::Notifier loop_wake;
-  std::atomic<bool> backend_done{false};
-  const bool loop_enabled = config_.loop.enabled;
-  std::atomic<bool> capture_done{false};
-  std::atomic<bool> tracking_done{false};
-  std::atomic<bool> depth_done{false};
-  Status capture_status;
-  // Relocalization mailbox: the tracking thread posts a lost frame's features (reloc_request_),
-  // the depth thread answers with a pose hint, the tracking thread takes it before its next
-  // frame. One request in flight; a lost frame that finds it busy is not posted.
-  enum : int { kRelocIdle = 0, kRelocPosted = 1, kRelocAnswered = 2 };
-  std::atomic<int> reloc_state{kRelocIdle};
-  frontend::RelocalizationHint reloc_answer;
-  constexpr std::uint32_t kRelocWork = 0xFFFFFFFFU;  // depth-thread work item: relocalize
-
-  auto capture_body = [&] {
-    std::int64_t last_frame_ns = platform::monotonic_now_ns();
-    while (true) {
-      if (stop_.load(std::memory_order_relaxed)) {
-        stats_.end_reason = "signal";
-        break;
-      }
-      if (reached_max_frames()) {
-        stats_.end_reason = "max_frames";
-        break;
-      }
-      AllocScope allocs;
-      hal::FrameHandle frame;
-      const hal::AcquireStatus st = camera_.acquire(frame, timeout_ns);
-      if (st == hal::AcquireStatus::kEndOfStream) {
-        stats_.end_reason = "end_of_stream";
-        break;
-      }
-      if (st == hal::AcquireStatus::kTimeout) {
-        ++stats_.acquire_timeouts;
-        if (source_timed_out(last_frame_ns)) {
-          stats_.end_reason = "source_error";
-          capture_status = input_error(source_timeout_message());
-          break;
-        }
-        continue;
-      }
-      if (st == hal::AcquireStatus::kPoolEmpty) {
-        ++stats_.pool_exhausted;
-        std::this_thread::sleep_for(std::chrono::nanoseconds(kPoolRetryNs));
-        continue;
-      }
-      if (st != hal::AcquireStatus::kFrame) {
-        stats_.end_reason = "source_error";
-        const Status& e = camera_.last_error();
-        capture_status =
-            input_error(e.is_ok() ? camera_.describe() + ": acquire failed" : e.message());
-        break;
-      }
-      last_frame_ns = platform::monotonic_now_ns();
-      ++stats_.frames_in;
-      lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
-      // Drop-oldest: a full ring hands back the oldest frame; its buffer returns to the pool.
-      if (const auto evicted = capture_ring->push(frame.release_raw())) {
-        hal::FrameHandle dropped = pool.adopt(*evicted);
-        ++stats_.frames_dropped;
-      }
-      capture_wake.notify();
-      if (stats_.frames_in > warmup) {
-        allocs_capture_.allocations += allocs.delta();
-        ++allocs_capture_.frames;
-      }
-    }
-    capture_done.store(true, std::memory_order_release);
-    capture_wake.notify_all();
-  };
-
-  std::uint64_t tracked_frames = 0;
-  auto tracking_body = [&] {
-    consume_loop<std::uint32_t>(
-        capture_wake, capture_done, [&](std::uint32_t& idx) { return capture_ring->try_pop(idx); },
-        [&](std::uint32_t& idx) {
-          AllocScope allocs;
-          hal::FrameHandle frame = pool.adopt(idx);
-          if (reloc_state.load(std::memory_order_acquire) == kRelocAnswered) {
-            tracker_->set_relocalization_hint(reloc_answer);
-            reloc_state.store(kRelocIdle, std::memory_order_release);
-          }
-          const std::int64_t t_trk = platform::monotonic_now_ns();
-          frontend::TrackingResult r = tracker_->spin_once(*frame);
-          const std::int64_t t_done = platform::monotonic_now_ns();
-          r.t_ready_ns = frame->t_ready_ns;
-          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kCapture)] = frame->produce_ns;
-          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kQueue)] =
-              t_trk - frame->t_ready_ns;
-          r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)] = t_done - t_trk;
-          lat_tracking_->record(r.seq, t_trk, t_done - t_trk);
-          lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
-          const std::uint64_t trk_delta = allocs.delta();
-          count_result(r);
-          if (r.relocalization_request && relocalizer_) {
-            if (reloc_state.load(std::memory_order_acquire) == kRelocIdle) {
-              tracker_->fill_relocalization_request(*frame, reloc_request_);
-              reloc_state.store(kRelocPosted, std::memory_order_release);
-              job_wake.notify();
-            } else {
-              ++stats_.relocalization.skipped_busy;
-            }
-          }
-          if (r.keyframe_job) {
-            std::uint32_t slot = 0;
-            if (free_ring->try_pop(slot)) {
-              tracker_->fill_keyframe_job(*frame, jobs_[slot]);
-              (void)job_ring->try_push(slot);  // cannot be full: slots are fewer than its size
-              job_wake.notify();
-            } else {
-              tracker_->keyframe_not_queued();
-              ++stats_.keyframes_deferred;
-            }
-          }
-          frame.reset();
-          if (!result_ring->try_push(r)) {
-            ++stats_.output_overflows;
-            MER_LOG_WARN("output ring full: result of frame %llu not written",
-                         static_cast<unsigned long long>(r.seq));
-          }
-          result_wake.notify();
-          if (++tracked_frames > warmup) {
-            if (r.steady) {
-              allocs_tracking_.allocations += trk_delta;
-              ++allocs_tracking_.frames;
-            }
-            count_state_allocs(r, trk_delta);
-          }
-        });
-    tracker_->stop_reading();  // queued keyframes may reuse slots freed after its last frame
-    tracking_done.store(true, std::memory_order_release);
-    result_wake.notify_all();
-    job_wake.notify_all();
-  };
-
-  // Depth thread (low priority): keyframe creation proper, then the back end is told.
-  auto depth_body = [&] {
-    consume_loop<std::uint32_t>(
-        job_wake, tracking_done,
-        [&](std::uint32_t& slot) {
-          if (job_ring->try_pop(slot)) return true;
-          if (reloc_state.load(std::memory_order_acquire) != kRelocPosted) return false;
-          slot = kRelocWork;
-          return true;
-        },
-        [&](std::uint32_t& slot) {
-          // The relocalizer holds nothing of the map between its runs.
-          if (reloc_reader_ >= 0) map_->reader_quiescent(reloc_reader_);
-          if (slot == kRelocWork) {
-            reloc_answer = relocalize(reloc_request_);
-            if (reloc_reader_ >= 0) map_->reader_quiescent(reloc_reader_);
-            reloc_state.store(kRelocAnswered, std::memory_order_release);
-            return;
-          }
-          const map::KeyframeJob& job = jobs_[slot];
-          const depth::KeyframeBuildReport rep = build_keyframe(job);
-          if (rep.segment_start) {  // a segment's start: nothing to optimize or cull yet
-            (void)free_ring->try_push(slot);
-            return;
-          }
-          BackendJob b;
-          b.inserted = rep.ok;
-          // After a refused insertion (map full) culling still runs, around the newest.
-          b.kf = rep.ok ? rep.keyframe : map_->newest_keyframe();
-          b.generation = map_->keyframe_generation(b.kf);
-          b.seq = job.seq;
-          b.K = job.K;
-          (void)free_ring->try_push(slot);
-          // The back end drains its whole queue at each wake-up, so a full queue means it is
-          // busy for a moment; this thread is not real-time and may wait (never while it
-          // holds the map's writer lock, so the back end cannot be waiting for it).
-          while (!backend_ring->try_push(b)) {
-            std::this_thread::sleep_for(std::chrono::nanoseconds(kBackendRetryNs));
-          }
-          // A newer keyframe in the map pre-empts the local BA in progress: its window is
-          // stale, and the run around the new keyframe can start now. (Not when the tracker
-          // queues the job: the new keyframe is not in the map until depth inference is
-          // done, so aborting then would only throw away optimization.)
-          if (rep.ok) {
-            ba_->request_abort();
-            loop_ba_->request_abort();  // as documented: a new keyframe pre-empts the full BA
-          }
-          backend_wake.notify();
-        });
-    if (reloc_reader_ >= 0) map_->release_reader(reloc_reader_);
-    depth_done.store(true, std::memory_order_release);
-    backend_wake.notify_all();
-  };
-
-  // Back-end thread (high priority, below tracking): local BA around the newest keyframe
-  // inserted, then culling. Keyframes queued behind one another need one run only.
-  auto backend_body = [&] {
-    consume_loop<BackendBatch>(
-        backend_wake, depth_done,
-        [&](BackendBatch& batch) {
-          BackendJob j;
-          if (!backend_ring->try_pop(j)) return false;
-          batch = BackendBatch{};
-          do {
-            if (j.inserted) {
-              if (batch.ba.inserted) ++batch.skipped;
-              batch.ba = j;
-            }
-            batch.cull = j;
-          } while (backend_ring->try_pop(j));
-          return true;
-        },
-        [&](BackendBatch& batch) {
-          stats_.backend_coalesced += static_cast<std::uint64_t>(batch.skipped);
-          // Ids are checked by generation: the culling of an earlier pass may have removed a
-          // keyframe queued behind (not the newest: the map never removes that one).
-          const bool ba_live =
-              batch.ba.inserted && map_->keyframe_generation(batch.ba.kf) == batch.ba.generation;
-          const bool cull_live = map_->keyframe_generation(batch.cull.kf) == batch.cull.generation;
-          optimize_and_cull(ba_live ? batch.ba.kf : map::kNoId, batch.ba.K, batch.ba.seq,
-                            cull_live ? batch.cull.kf : map_->newest_keyframe());
-          // Loop detection and correction run on their own thread, after the local BA the
-          // keyframe had; a full queue (the loop thread far behind) skips the keyframe.
-          if (loop_enabled && ba_live &&
-              map_->keyframe_generation(batch.ba.kf) == batch.ba.generation) {
-            if (loop_ring->try_push(batch.ba)) {
-              loop_wake.notify();
-            } else {
-              ++stats_.loop_queue_full;
-            }
-          }
-        });
-    backend_done.store(true, std::memory_order_release);
-    loop_wake.notify_all();
-  };
-
-  // Loop-closure thread (lowest priority): detection, correction and the full BA after a
-  // loop, writing the map under its writer lock as every writer does.
-  auto loop_body = [&] {
-    consume_loop<BackendJob>(
-        loop_wake, backend_done, [&](BackendJob& j) { return loop_ring->try_pop(j); },
-        [&](BackendJob& j) {
-          if (map_->keyframe_generation(j.kf) == j.generation) (void)loop_->spin_once(j.kf, j.K);
-        });
-  };
-
-  std::uint64_t written_frames = 0;
-  auto output_body = [&] {
-    consume_loop<frontend::TrackingResult>(
-        result_wake, tracking_done,
-        [&](frontend::TrackingResult& r) { return result_ring->try_pop(r); },
-        [&](frontend::TrackingResult& r) {
-          AllocScope allocs;
-          const std::int64_t t0 = platform::monotonic_now_ns();
-          const std::int64_t out_ns = output_.spin_once(
-              r, r.stage_ns[static_cast<std::size_t>(frontend::StageId::kQueue)] +
-                     r.stage_ns[static_cast<std::size_t>(frontend::StageId::kTracking)]);
-          lat_output_->record(r.seq, t0, out_ns);
-          if (++written_frames > warmup) {
-            allocs_output_.allocations += allocs.delta();
-            ++allocs_output_.frames;
-          }
-        });
-  };
-
-  platform::RtThread output_thread;
-  platform::RtThread loop_thread;
-  platform::RtThread backend_thread;
-  platform::RtThread depth_thread;
-  platform::RtThread tracking_thread;
-  platform::RtThread capture_thread;
-  // Start consumers first so the capture ring is drained from the first frame.
-  const bool ok = output_thread.start(threads.output, output_body) &&
-                  loop_thread.start(threads.loop, loop_body) &&
-                  backend_thread.start(threads.backend, backend_body) &&
-                  depth_thread.start(threads.depth, depth_body) &&
-                  tracking_thread.start(threads.tracking, tracking_body) &&
-                  capture_thread.start(threads.capture, capture_body);
-  if (!ok) {
-    capture_done.store(true);
-    capture_wake.notify_all();
-    tracking_done.store(true);
-    result_wake.notify_all();
-    job_wake.notify_all();
-    depth_done.store(true);
-    backend_wake.notify_all();
-    backend_done.store(true);
-    loop_wake.notify_all();
-  }
-  // Shutdown order: capture ends -> tracking drains -> depth drains -> back end drains ->
-  // loop closure drains.
-  capture_thread.join();
-  tracking_thread.join();
-  depth_thread.join();
-  backend_thread.join();
-  loop_thread.join();
-  output_thread.join();
-  if (!ok) return runtime_error("pipeline: could not start the stage threads");
-
-  const std::pair<const platform::ThreadSpec*, const platform::RtThread*> placed[] = {
-      {&threads.capture, &capture_thread}, {&threads.tracking, &tracking_thread},
-      {&threads.output, &output_thread},   {&threads.depth, &depth_thread},
-      {&threads.backend, &backend_thread}, {&threads.loop, &loop_thread}};
-  for (const auto& [spec, t] : placed) {
-    stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
-                                             t->report().fully_applied(), t->report().warning});
-  }
-  return capture_status;
-}
 
 }  // namespace mer::pipeline

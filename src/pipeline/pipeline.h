@@ -255,6 +255,7 @@ class Pipeline {
   FinishedMap finished_map();
 
  private:
+  struct Threaded;  // the stage threads of run_threaded (pipeline_threaded.cpp)
   Status run_lockstep();
   Status run_threaded();
   void finish_stats(std::int64_t t_start_ns);
