@@ -46,11 +46,23 @@ std::string num(double v) {
   return os.str();
 }
 
-}  // namespace
+/// `"key": {...},` of one accuracy report (or its note when it is not available).
+void write_accuracy(std::ostream& j, const char* key, const AccuracyReport& a) {
+  if (a.available) {
+    j << "  \"" << key << "\": {\"align\": " << json_string(a.alignment)
+      << ", \"pairs\": " << a.pairs << ", \"gt_frames\": " << a.gt_frames
+      << ", \"scale\": " << num(a.scale) << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
+      << ", \"ate_mean_m\": " << num(a.ate_mean_m) << ", \"ate_median_m\": " << num(a.ate_median_m)
+      << ", \"ate_max_m\": " << num(a.ate_max_m) << ", \"path_length_m\": " << num(a.path_length_m)
+      << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
+      << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
+  } else {
+    j << "  \"" << key << "\": {\"note\": " << json_string(a.note) << "},\n";
+  }
+}
 
-std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info) {
-  std::ostringstream j;
-  j << "{\n";
+/// Frame counts, latency, budgets and allocations.
+void write_frames(std::ostream& j, const pipeline::PipelineStats& st) {
   j << "  \"frames_in\": " << st.frames_in << ",\n";
   j << "  \"frames_processed\": " << st.frames_processed << ",\n";
   j << "  \"frames_dropped\": " << st.frames_dropped << ",\n";
@@ -92,6 +104,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     j << (i ? ", " : "") << json_string(st.allocs[i].thread) << ": " << st.allocs[i].frames;
   }
   j << "},\n";
+}
+
+/// The input, modes and intrinsics of the run.
+void write_run(std::ostream& j, const pipeline::PipelineStats& st, const RunInfo& info) {
   j << "  \"input\": " << json_string(info.input) << ",\n";
   j << "  \"source\": " << json_string(info.source) << ",\n";
   j << "  \"sensor_mode\": " << json_string(std::string(to_string(info.sensor_mode))) << ",\n";
@@ -101,21 +117,11 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"fx\": " << num(k.fx) << ", \"fy\": " << num(k.fy) << ", \"cx\": " << num(k.cx)
     << ", \"cy\": " << num(k.cy) << "},\n";
   j << "  \"pose_source\": " << json_string(st.pose_source) << ",\n";
-  auto accuracy_json = [&](const char* key, const AccuracyReport& a) {
-    if (a.available) {
-      j << "  \"" << key << "\": {\"align\": " << json_string(a.alignment)
-        << ", \"pairs\": " << a.pairs << ", \"gt_frames\": " << a.gt_frames
-        << ", \"scale\": " << num(a.scale) << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)
-        << ", \"ate_mean_m\": " << num(a.ate_mean_m)
-        << ", \"ate_median_m\": " << num(a.ate_median_m) << ", \"ate_max_m\": " << num(a.ate_max_m)
-        << ", \"path_length_m\": " << num(a.path_length_m)
-        << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
-        << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
-    } else {
-      j << "  \"" << key << "\": {\"note\": " << json_string(a.note) << "},\n";
-    }
-  };
-  accuracy_json("accuracy", info.accuracy);
+}
+
+/// The accuracy of trajectory.txt and the map segments.
+void write_segments(std::ostream& j, const pipeline::PipelineStats& st, const RunInfo& info) {
+  write_accuracy(j, "accuracy", info.accuracy);
   // Map segments: each in its own world frame until merged into another (merged_into, -1:
   // never); `trajectory` is the file holding its frames, trajectory.txt for the main one.
   j << "  \"segments\": [";
@@ -140,15 +146,20 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     j << "}";
   }
   j << "],\n";
-  accuracy_json("accuracy_keyframes", info.accuracy_keyframes);
+}
+
+/// The final map's accuracy, the ground-truth check and the final BA.
+void write_final_and_gt_check(std::ostream& j, const pipeline::PipelineStats& st,
+                              const RunInfo& info) {
+  write_accuracy(j, "accuracy_keyframes", info.accuracy_keyframes);
   if (info.final_trajectory_written) {
     const pipeline::FinalTrajectoryStats& f = info.final_trajectory;
     j << "  \"final_trajectory\": {\"frames\": " << f.frames << ", \"reanchored\": " << f.reanchored
       << ", \"via_lineage\": " << f.via_lineage << ", \"interpolated\": " << f.interpolated
       << ", \"unresolved\": " << f.unresolved << "},\n";
-    accuracy_json("accuracy_final", info.accuracy_final);
+    write_accuracy(j, "accuracy_final", info.accuracy_final);
     // Kept for readers of earlier summaries: the final BA's trajectory is trajectory_final.txt.
-    if (st.final_ba.ran) accuracy_json("accuracy_final_ba", info.accuracy_final);
+    if (st.final_ba.ran) write_accuracy(j, "accuracy_final_ba", info.accuracy_final);
   }
   if (info.gt_check_requested) {
     const eval::GroundTruthCheckReport& g = info.gt_check;
@@ -171,9 +182,9 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
         << ", \"iterations_converged\": " << g.iterations_converged
         << ", \"iterations_shuffled\": " << g.iterations_shuffled
         << ", \"iterations_shuffled_detected\": " << g.iterations_shuffled_detected << "},\n";
-      accuracy_json("accuracy_gt_converged", info.accuracy_gt_converged);
-      accuracy_json("accuracy_gt_shuffled", info.accuracy_gt_shuffled);
-      accuracy_json("accuracy_gt_shuffled_detected", info.accuracy_gt_shuffled_detected);
+      write_accuracy(j, "accuracy_gt_converged", info.accuracy_gt_converged);
+      write_accuracy(j, "accuracy_gt_shuffled", info.accuracy_gt_shuffled);
+      write_accuracy(j, "accuracy_gt_shuffled_detected", info.accuracy_gt_shuffled_detected);
     } else {
       j << "  \"gt_check\": {\"note\": " << json_string(g.note) << "},\n";
     }
@@ -184,6 +195,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
       << ", \"observations\": " << f.observations << ", \"iterations\": " << f.iterations
       << ", \"ms\": " << num(f.ms) << "},\n";
   }
+}
+
+/// Tracking counters and the tracking steps' latency.
+void write_tracking(std::ostream& j, const pipeline::PipelineStats& st) {
   const frontend::TrackerCounters& tc = st.tracker;
   j << "  \"tracking\": {\"initialized\": " << (tc.initialized ? "true" : "false")
     << ", \"initialized_seq\": " << tc.initialized_seq
@@ -234,6 +249,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"initial\": " << num(f.initial) << ", \"value\": " << num(f.value)
     << ", \"fixed\": " << (f.fixed ? "true" : "false") << ", \"fixed_at_seq\": " << f.fixed_at_seq
     << ", \"estimates\": " << f.estimates << "},\n";
+}
+
+/// The focal length and keyframe creation, culling and map counters.
+void write_focal_and_map(std::ostream& j, const pipeline::PipelineStats& st) {
   const depth::KeyframeBuildTotals& m = st.mapping;
   j << "  \"map\": {\"keyframes\": " << st.keyframes << ", \"points\": " << st.map_points
     << ", \"keyframes_deferred\": " << st.keyframes_deferred
@@ -268,6 +287,11 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"reused_point_slots\": " << st.map.reused_point_slots << ", \"culling_mean_ms\": "
     << num(st.culling.runs ? st.culling.total_ms / static_cast<double>(st.culling.runs) : 0.0)
     << ", \"culling_max_ms\": " << num(st.culling.max_ms) << "},\n";
+}
+
+/// Local BA, loop closure and relocalization.
+void write_backend_loop_relocalization(std::ostream& j, const pipeline::PipelineStats& st) {
+  const frontend::TrackerCounters& tc = st.tracker;
   const backend::LocalBaTotals& ba = st.backend;
   j << "  \"backend\": {\"local_ba_runs\": " << ba.runs
     << ", \"culled_points\": " << ba.culled_points << ", \"outliers\": " << ba.outliers
@@ -320,6 +344,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     << ", \"rejected\": {\"lost_while_confirming\": " << tc.relocalization_rejected_lost
     << ", \"few_found_in_view\": " << tc.relocalization_rejected_found
     << ", \"outside_motion_bound\": " << tc.relocalization_rejected_bound << "}},\n";
+}
+
+/// The ground-truth audit of relocalizations and loops.
+void write_gt_audit(std::ostream& j, const RunInfo& info) {
   // Ground-truth audit of relocalizations and loops (when the source had ground truth).
   if (info.events.available) {
     const EventAuditReport& ev = info.events;
@@ -349,6 +377,10 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
     }
     j << (ev.events.empty() ? "" : "\n  ") << "]},\n";
   }
+}
+
+/// How the run ended, the source's counters and the threads.
+void write_run_end(std::ostream& j, const pipeline::PipelineStats& st, const RunInfo& info) {
   j << "  \"end_reason\": " << json_string(st.end_reason) << ",\n";
   j << "  \"stopped_by_signal\": " << (info.stopped_by_signal ? "true" : "false") << ",\n";
   j << "  \"pool_exhausted\": " << st.pool_exhausted << ",\n";
@@ -367,6 +399,22 @@ std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info)
   }
   j << (st.threads.empty() ? "" : "\n  ") << "],\n";
   j << "  \"error\": " << json_string(info.error) << "\n";
+}
+
+}  // namespace
+
+std::string summary_json(const pipeline::PipelineStats& st, const RunInfo& info) {
+  std::ostringstream j;
+  j << "{\n";
+  write_frames(j, st);
+  write_run(j, st, info);
+  write_segments(j, st, info);
+  write_final_and_gt_check(j, st, info);
+  write_tracking(j, st);
+  write_focal_and_map(j, st);
+  write_backend_loop_relocalization(j, st);
+  write_gt_audit(j, info);
+  write_run_end(j, st, info);
   j << "}\n";
   return j.str();
 }
