@@ -22,10 +22,6 @@ namespace {
 
 using geometry::Sim3d;
 
-/// Keyframes of the candidate's neighbourhood tied to the corrected one by loop edges.
-constexpr std::size_t kLoopNeighbours = 6;
-/// Covisible keyframes read per keyframe (map.max_covisible_per_keyframe bounds it anyway).
-constexpr std::size_t kMaxCovisible = 64;
 /// A pending loop expires when this many keyframes pass without it being seen again.
 constexpr std::uint64_t kConsistencyWindowKeyframes = 3;
 /// Loop edges remembered for the pose graphs of later loops.
@@ -59,48 +55,6 @@ bool plausible_sim3(const Sim3d& S, double max_scale) {
          S.t.allFinite();
 }
 
-/// Relative similarity error of a pose-graph edge (i, j): parameters are S_w_i and S_w_j as
-/// (unit quaternion x y z w, translation, log scale); the measurement is S_i_j. The residual
-/// is (2 vec(q_e), t_e, log s_e) of E = S_i_j_meas^-1 * S_w_i^-1 * S_w_j (identity when the
-/// edge holds), with unit information, as in the usual essential-graph formulation.
-struct Sim3EdgeCost {
-  explicit Sim3EdgeCost(const Sim3d& S_i_j) {
-    const Sim3d inv = S_i_j.inverse();
-    q_inv = Eigen::Quaterniond(inv.R);
-    t_inv = inv.t;
-    log_s_inv = std::log(inv.s);
-  }
-  template <class T>
-  bool operator()(const T* qi, const T* ti, const T* li, const T* qj, const T* tj, const T* lj,
-                  T* res) const {
-    const Eigen::Map<const Eigen::Quaternion<T>> Qi(qi);
-    const Eigen::Map<const Eigen::Quaternion<T>> Qj(qj);
-    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> Ti(ti);
-    const Eigen::Map<const Eigen::Matrix<T, 3, 1>> Tj(tj);
-    // P = S_w_i^-1 * S_w_j.
-    const Eigen::Quaternion<T> qi_inv = Qi.conjugate();
-    const Eigen::Quaternion<T> q_p = qi_inv * Qj;
-    const Eigen::Matrix<T, 3, 1> t_p = (qi_inv * (Tj - Ti)) * exp(-li[0]);
-    const T log_s_p = lj[0] - li[0];
-    // E = M^-1 * P.
-    const Eigen::Quaternion<T> q_m = q_inv.cast<T>();
-    Eigen::Quaternion<T> q_e = q_m * q_p;
-    const Eigen::Matrix<T, 3, 1> t_e = (q_m * t_p) * T(std::exp(log_s_inv)) + t_inv.cast<T>();
-    if (q_e.w() < T(0)) q_e.coeffs() = -q_e.coeffs();
-    res[0] = T(2) * q_e.x();
-    res[1] = T(2) * q_e.y();
-    res[2] = T(2) * q_e.z();
-    res[3] = t_e.x();
-    res[4] = t_e.y();
-    res[5] = t_e.z();
-    res[6] = log_s_p + T(log_s_inv);
-    return true;
-  }
-  Eigen::Quaterniond q_inv;
-  Eigen::Vector3d t_inv;
-  double log_s_inv = 0.0;
-};
-
 /// Reprojection error of one loop match under S_cand_new = (q, t, exp(log_s)): the new
 /// keyframe's point moved into the old view that observed its match, and the old point moved
 /// into the new keyframe, each against its keypoint in sigmas (4 residuals). The points stay
@@ -130,28 +84,6 @@ struct Sim3ReprojectionCost {
     res[2] = (T(K.fx) * b.x() / b.z() + T(K.cx) - T(kp_new.x())) * T(inv_sigma_new);
     res[3] = (T(K.fy) * b.y() / b.z() + T(K.cy) - T(kp_new.y())) * T(inv_sigma_new);
     return true;
-  }
-};
-
-struct GraphNode {
-  map::KeyframeId id = map::kNoId;
-  std::uint64_t serial = 0;
-  Sim3d sim_old;              // S_w_k before the correction
-  std::array<double, 4> q{};  // x y z w of S_w_k
-  std::array<double, 3> t{};
-  double log_s = 0.0;
-  Sim3d value() const {
-    Sim3d S;
-    S.R = Eigen::Quaterniond(q[3], q[0], q[1], q[2]).normalized().toRotationMatrix();
-    S.t = {t[0], t[1], t[2]};
-    S.s = std::exp(log_s);
-    return S;
-  }
-  void set(const Sim3d& S) {
-    const Eigen::Quaterniond qq(S.R);
-    q = {qq.x(), qq.y(), qq.z(), qq.w()};
-    t = {S.t.x(), S.t.y(), S.t.z()};
-    log_s = std::log(S.s);
   }
 };
 
@@ -196,23 +128,30 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     return rep;
   }
   ++totals_.keyframes_checked;
+  const std::uint16_t segment = map_.keyframe_segment(kf);
+  retrieve_candidates(kf, serial, segment);
+  Hypothesis best = check_candidates(kf, segment, K, rep);
+  decide(kf, serial, segment, best, K, rep);
+  rep.ms = platform::elapsed_ms(t0);
+  lock.unlock();
+  if (rep.closed) finish_closure(kf, serial, K, rep);
+  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
+  return rep;
+}
 
+void LoopCloser::retrieve_candidates(map::KeyframeId kf, std::uint64_t serial,
+                                     std::uint16_t segment) {
   // 1. Retrieval. Old keyframes the new one already shares points with (tracking found
   // their points again) come first, by shared points; then those whose key score passes the
   // bar, by score.
-  struct Candidate {
-    bool covisible = false;
-    double score = 0.0;
-    map::KeyframeId id = map::kNoId;
-  };
-  std::vector<Candidate> ranked;
+  std::vector<Candidate>& ranked = ranked_;
+  ranked.clear();
   std::vector<Candidate> scored;
   std::unique_lock<platform::PiMutex> db_lock(db_.mutex());  // until key_scores is read
   (void)db_.refresh(kf);
   db_.refresh_live();  // key frequencies first
   const std::span<const double> key_scores = db_.score_keyframe(kf);
   const map::KeyframeId n = map_.num_keyframes();
-  const std::uint16_t segment = map_.keyframe_segment(kf);
   const std::int64_t t_kf = map_.keyframe_t_ns(kf);
   const auto min_gap_ns = static_cast<std::int64_t>(opts_.min_time_gap_s * kNsPerS);
   for (map::KeyframeId id = 0; id < n && id < db_.capacity(); ++id) {
@@ -265,24 +204,16 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
   if (ranked.size() > static_cast<std::size_t>(opts_.max_candidates)) {
     ranked.resize(static_cast<std::size_t>(opts_.max_candidates));
   }
+}
 
+LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uint16_t segment,
+                                                    const geometry::Pinhole& K, LoopReport& rep) {
   // 2. Geometric check of every candidate; the one whose similarity explains the most
   //    matches wins (the first to pass may be a weaker hypothesis of a neighbouring place,
   //    made to pass by the guided search).
-  struct Best {
-    map::KeyframeId cand = map::kNoId;
-    int matches = 0;
-    int inliers = 0;
-    Sim3d sim;  ///< S_cand_new
-    double drift = 0.0;
-    double found_new = 0.0;
-    double found_old = 0.0;
-    bool connected = false;  ///< it shared points with the new keyframe
-    double usual = 0.0;      ///< usual_found_share of the new keyframe
-  };
-  Best best;
+  Hypothesis best;
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
-  for (const Candidate& c : ranked) {
+  for (const Candidate& c : ranked_) {
     const map::KeyframeId cand = c.id;
     max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
     ++rep.candidates;
@@ -345,11 +276,17 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       ++totals_.rejected.not_found;
       continue;
     }
-    best = Best{cand, m, inliers, S_cand_new, drift, found_new, found_old, c.covisible, usual};
+    best =
+        Hypothesis{cand, m, inliers, S_cand_new, drift, found_new, found_old, c.covisible, usual};
     best_matches_.swap(matches_);
     best_inlier_.swap(inlier_);
     best_old_views_.swap(old_views_);
   }
+  return best;
+}
+
+void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment,
+                        Hypothesis& best, const geometry::Pinhole& K, LoopReport& rep) {
   if (best.cand == map::kNoId && pending_.count > 0 &&
       serial > pending_.serial + kConsistencyWindowKeyframes) {
     ++totals_.rejected.inconsistent;  // not seen again in time
@@ -393,43 +330,41 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
       rep.closed = true;
     }
   }
-  rep.ms = platform::elapsed_ms(t0);
-  lock.unlock();
-  if (rep.closed) {
-    any_loop_ = true;
-    last_loop_serial_ = serial;
-    MER_LOG_INFO(
-        "loop closed: keyframe of frame %llu onto frame %llu, %d of %d matches, scale %.4f, "
-        "shift %.3f, %d keyframes, %d points merged, %d observations fused, %.1f ms",
-        static_cast<unsigned long long>(map_.keyframe_seq(kf)),
-        static_cast<unsigned long long>(rep.loop_seq), rep.inliers, rep.matches, rep.scale,
-        rep.shift, rep.keyframes, rep.merged_points, rep.fused_observations, rep.ms);
-    if (ba_ != nullptr && opts_.full_ba_iterations > 0) {
-      const auto t1 = platform::monotonic_now_ns();
-      (void)ba_->optimize_full(K, opts_.full_ba_iterations);
-      rep.full_ba_ms = platform::elapsed_ms(t1);
-    }
-    ++totals_.loops_closed;
-    if (rep.merged_from != map::kNoSegment) {
-      ++totals_.segments_merged;
-      if (totals_.merges.size() < kMaxLoopEvents) {
-        totals_.merges.push_back(SegmentMergeEvent{
-            map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.merged_from,
-            rep.merged_into, rep.merge_keyframes, rep.inliers, rep.merge_similarity});
-      }
-    }
-    totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
-    totals_.last_loop = rep;
-    if (totals_.closures.size() < kMaxLoopEvents) {
-      totals_.closures.push_back(LoopClosureEvent{
-          map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.loop_t_ns,
-          map_.keyframe_segment(kf), rep.inliers, rep.found_new, rep.found_old, rep.found_usual,
-          rep.drift, rep.connected, rep.similarity});
-    }
-    totals_.max_full_ba_ms = std::max(totals_.max_full_ba_ms, rep.full_ba_ms);
+}
+
+void LoopCloser::finish_closure(map::KeyframeId kf, std::uint64_t serial,
+                                const geometry::Pinhole& K, LoopReport& rep) {
+  any_loop_ = true;
+  last_loop_serial_ = serial;
+  MER_LOG_INFO(
+      "loop closed: keyframe of frame %llu onto frame %llu, %d of %d matches, scale %.4f, "
+      "shift %.3f, %d keyframes, %d points merged, %d observations fused, %.1f ms",
+      static_cast<unsigned long long>(map_.keyframe_seq(kf)),
+      static_cast<unsigned long long>(rep.loop_seq), rep.inliers, rep.matches, rep.scale, rep.shift,
+      rep.keyframes, rep.merged_points, rep.fused_observations, rep.ms);
+  if (ba_ != nullptr && opts_.full_ba_iterations > 0) {
+    const auto t1 = platform::monotonic_now_ns();
+    (void)ba_->optimize_full(K, opts_.full_ba_iterations);
+    rep.full_ba_ms = platform::elapsed_ms(t1);
   }
-  totals_.max_ms = std::max(totals_.max_ms, rep.ms);
-  return rep;
+  ++totals_.loops_closed;
+  if (rep.merged_from != map::kNoSegment) {
+    ++totals_.segments_merged;
+    if (totals_.merges.size() < kMaxLoopEvents) {
+      totals_.merges.push_back(SegmentMergeEvent{
+          map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.merged_from,
+          rep.merged_into, rep.merge_keyframes, rep.inliers, rep.merge_similarity});
+    }
+  }
+  totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
+  totals_.last_loop = rep;
+  if (totals_.closures.size() < kMaxLoopEvents) {
+    totals_.closures.push_back(
+        LoopClosureEvent{map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.loop_t_ns,
+                         map_.keyframe_segment(kf), rep.inliers, rep.found_new, rep.found_old,
+                         rep.found_usual, rep.drift, rep.connected, rep.similarity});
+  }
+  totals_.max_full_ba_ms = std::max(totals_.max_full_ba_ms, rep.full_ba_ms);
 }
 
 double LoopCloser::implied_drift(map::KeyframeId kf, map::KeyframeId cand,
@@ -861,313 +796,6 @@ int LoopCloser::guided_matches(map::KeyframeId kf, map::KeyframeId cand, const S
   }
   if (matches_.size() == before || !match_positions(kf, cand)) return 0;
   return static_cast<int>(matches_.size()) - static_cast<int>(before);
-}
-
-void LoopCloser::merge_segments(map::KeyframeId kf, map::KeyframeId cand, Sim3d& S_cand_new,
-                                LoopReport& rep) {
-  const std::uint16_t seg_new = map_.keyframe_segment(kf);
-  const std::uint16_t seg_cand = map_.keyframe_segment(cand);
-  SE3d T_w_new;
-  SE3d T_w_cand;
-  if (seg_new == seg_cand || !map_.keyframe_pose(kf, T_w_new) ||
-      !map_.keyframe_pose(cand, T_w_cand)) {
-    return;
-  }
-  // The new keyframe's world -> the candidate's: through the two cameras the match relates.
-  const Sim3d S_wcand_wnew =
-      Sim3d::from_se3(T_w_cand) * S_cand_new * Sim3d::from_se3(T_w_new).inverse();
-  // The older segment (the smaller id) keeps its frame; the newer one moves into it.
-  const bool new_moves = seg_new > seg_cand;
-  const std::uint16_t from = new_moves ? seg_new : seg_cand;
-  const std::uint16_t into = new_moves ? seg_cand : seg_new;
-  const Sim3d S_into_from = new_moves ? S_wcand_wnew : S_wcand_wnew.inverse();
-  const std::uint32_t moved = map_.merge_segment(from, into, S_into_from);
-  if (moved == 0) return;
-  // The moved side's camera coordinates scaled with its map: the new keyframe's by s (x_old =
-  // s R x + t = R (s x) + t) or the candidate's by 1 / s (x_old / s = R x + t / s).
-  if (!new_moves) S_cand_new.t /= S_cand_new.s;
-  S_cand_new.s = 1.0;
-  rep.merged_from = from;
-  rep.merged_into = into;
-  rep.merge_keyframes = static_cast<int>(moved);
-  rep.merge_similarity = S_into_from;
-  MER_LOG_INFO("map segment %u merged into segment %u (%u keyframes, scale %.4f)", unsigned{from},
-               unsigned{into}, moved, S_into_from.s);
-}
-
-int LoopCloser::correct(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
-                        const geometry::Pinhole& K, LoopReport& rep) {
-  // Nodes: every live keyframe of the loop's segment, in creation order (another segment's
-  // keyframes are in another frame: a correction of this one must not drag them).
-  const std::uint16_t segment = map_.keyframe_segment(cand);
-  std::vector<GraphNode> nodes;
-  std::vector<int> node_of(map_.num_keyframes(), -1);
-  for (map::KeyframeId id = 0; id < map_.num_keyframes(); ++id) {
-    SE3d T;
-    if (!map_.keyframe_is_live(id) || map_.keyframe_segment(id) != segment ||
-        !map_.keyframe_pose(id, T)) {
-      continue;
-    }
-    GraphNode g;
-    g.id = id;
-    g.serial = map_.keyframe_serial(id);
-    g.sim_old = Sim3d::from_se3(T);
-    g.set(g.sim_old);
-    nodes.push_back(g);
-  }
-  std::sort(nodes.begin(), nodes.end(),
-            [](const GraphNode& a, const GraphNode& b) { return a.serial < b.serial; });
-  for (std::size_t i = 0; i < nodes.size(); ++i) node_of[nodes[i].id] = static_cast<int>(i);
-  const int i_new = node_of[kf];
-  const int i_cand = node_of[cand];
-  if (i_new < 0 || i_cand < 0) return 0;
-
-  // The correction at the new keyframe, and its neighbourhood moved rigidly with it.
-  const Sim3d S_w_new_corr = nodes[static_cast<std::size_t>(i_cand)].sim_old * S_cand_new;
-  const Sim3d C = S_w_new_corr * nodes[static_cast<std::size_t>(i_new)].sim_old.inverse();
-  std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
-  const std::size_t nc = map_.covisible_keyframes(kf, covis);
-
-  // The window: the new keyframe and its recent neighbours (not the old ones it already
-  // shares points with: those are the other side of the loop).
-  const auto gap = static_cast<std::uint64_t>(opts_.min_keyframe_gap);
-  auto recent = [&](int i) {
-    return nodes[static_cast<std::size_t>(i)].serial + gap >
-           nodes[static_cast<std::size_t>(i_new)].serial;
-  };
-  auto long_gap = [&](int i, int j) {
-    const std::uint64_t a = nodes[static_cast<std::size_t>(i)].serial;
-    const std::uint64_t b = nodes[static_cast<std::size_t>(j)].serial;
-    return (a > b ? a - b : b - a) >= gap;
-  };
-  std::vector<int> window{i_new};
-  for (std::size_t k = 0; k < nc; ++k) {
-    const int i = node_of[covis[k].id];
-    if (i >= 0 && i != i_cand && recent(i)) window.push_back(i);
-  }
-  std::vector<Sim3d> S_init(nodes.size());
-  for (std::size_t i = 0; i < nodes.size(); ++i) S_init[i] = nodes[i].sim_old;
-  for (const int i : window)
-    S_init[static_cast<std::size_t>(i)] = C * nodes[static_cast<std::size_t>(i)].sim_old;
-  for (std::size_t i = 0; i < nodes.size(); ++i) nodes[i].set(S_init[i]);
-
-  // Edges.
-  ceres::Problem::Options popts;
-  ceres::Problem problem(popts);
-  ceres::Manifold* quat = new ceres::EigenQuaternionManifold;  // owned by the problem
-  bool quat_used = false;
-  auto add_edge = [&](int i, int j, const Sim3d& S_i_j) {
-    auto* cost =
-        new ceres::AutoDiffCostFunction<Sim3EdgeCost, 7, 4, 3, 1, 4, 3, 1>(new Sim3EdgeCost(S_i_j));
-    GraphNode& a = nodes[static_cast<std::size_t>(i)];
-    GraphNode& b = nodes[static_cast<std::size_t>(j)];
-    problem.AddResidualBlock(cost, nullptr, a.q.data(), a.t.data(), &a.log_s, b.q.data(),
-                             b.t.data(), &b.log_s);
-  };
-  auto old_relative = [&](int i, int j) {
-    return nodes[static_cast<std::size_t>(i)].sim_old.inverse() *
-           nodes[static_cast<std::size_t>(j)].sim_old;
-  };
-  int edges = 0;
-  for (std::size_t i = 0; i < nodes.size(); ++i) {
-    if (i > 0) {
-      add_edge(static_cast<int>(i - 1), static_cast<int>(i),
-               old_relative(static_cast<int>(i - 1), static_cast<int>(i)));
-      ++edges;
-    }
-    const std::size_t m = map_.covisible_keyframes(nodes[i].id, covis);
-    for (std::size_t k = 0; k < m; ++k) {
-      const int j = node_of[covis[k].id];
-      // Each pair once (the older first), consecutive pairs already have their edge.
-      // Pairs far apart in time are loop edges: the ones of earlier loops are added below,
-      // others hold the drift this loop removes.
-      if (j < 0 || static_cast<std::size_t>(j) >= i || static_cast<std::size_t>(j) + 1 == i ||
-          covis[k].weight < static_cast<std::uint32_t>(opts_.min_edge_weight) ||
-          long_gap(j, static_cast<int>(i))) {
-        continue;
-      }
-      add_edge(j, static_cast<int>(i), old_relative(j, static_cast<int>(i)));
-      ++edges;
-    }
-  }
-  // Loop edges: the corrected neighbourhood of the new keyframe to the candidate's.
-  std::vector<int> loop_side{i_cand};
-  const std::size_t ncc = map_.covisible_keyframes(cand, covis);
-  for (std::size_t k = 0; k < ncc && loop_side.size() < kLoopNeighbours; ++k) {
-    const int j = node_of[covis[k].id];
-    if (j >= 0 && std::find(window.begin(), window.end(), j) == window.end())
-      loop_side.push_back(j);
-  }
-  // Edges of the loops closed before (consistent since their correction).
-  for (const LoopEdge& e : loop_edges_) {
-    if (e.a >= node_of.size() || e.b >= node_of.size() ||
-        map_.keyframe_generation(e.a) != e.gen_a || map_.keyframe_generation(e.b) != e.gen_b) {
-      continue;
-    }
-    const int i = node_of[e.a];
-    const int j = node_of[e.b];
-    if (i < 0 || j < 0) continue;
-    add_edge(i, j, old_relative(i, j));
-    ++edges;
-  }
-  for (const int w : window) {
-    for (const int l : loop_side) {
-      add_edge(l, w,
-               S_init[static_cast<std::size_t>(l)].inverse() * S_init[static_cast<std::size_t>(w)]);
-      ++edges;
-      const map::KeyframeId a = nodes[static_cast<std::size_t>(l)].id;
-      const map::KeyframeId b = nodes[static_cast<std::size_t>(w)].id;
-      if (loop_edges_.size() < loop_edges_.capacity()) {
-        loop_edges_.push_back(
-            LoopEdge{a, map_.keyframe_generation(a), b, map_.keyframe_generation(b)});
-      }
-    }
-  }
-  for (GraphNode& g : nodes) {
-    if (problem.HasParameterBlock(g.q.data())) {
-      problem.SetManifold(g.q.data(), quat);
-      quat_used = true;
-      if (metric_) problem.SetParameterBlockConstant(&g.log_s);
-    }
-  }
-  GraphNode& anchor = nodes[static_cast<std::size_t>(i_cand)];
-  problem.SetParameterBlockConstant(anchor.q.data());
-  problem.SetParameterBlockConstant(anchor.t.data());
-  problem.SetParameterBlockConstant(&anchor.log_s);
-  if (!quat_used) delete quat;
-
-  ceres::Solver::Options sopts;
-  sopts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  // Eigen's sparse Cholesky: SuiteSparse's runs OpenMP regions on this real-time thread.
-  if (ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::EIGEN_SPARSE)) {
-    sopts.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
-  }
-  sopts.max_num_iterations = opts_.pose_graph_iterations;
-  sopts.num_threads = 1;
-  sopts.logging_type = ceres::SILENT;
-  ceres::Solver::Summary summary;
-  ceres::Solve(sopts, &problem, &summary);
-  MER_LOG_DEBUG("loop pose graph: %zu keyframes, %d edges, cost %.3g -> %.3g, %d iterations",
-                nodes.size(), edges, summary.initial_cost, summary.final_cost,
-                static_cast<int>(summary.iterations.size()));
-
-  // Apply: keyframe poses and depths, then every point with its reference keyframe.
-  std::vector<Sim3d> D(nodes.size());
-  for (std::size_t i = 0; i < nodes.size(); ++i) {
-    const Sim3d S_new = nodes[i].value();
-    D[i] = S_new * nodes[i].sim_old.inverse();
-    double kf_scale = 1.0;
-    SE3d T_unused;
-    (void)map_.keyframe_pose(nodes[i].id, T_unused, &kf_scale);
-    map_.set_keyframe_pose(nodes[i].id, S_new.rigid(), kf_scale);
-    if (!metric_) {
-      const std::uint32_t nk = map_.keyframe_num_keypoints(nodes[i].id);
-      for (std::uint32_t kp = 0; kp < nk; ++kp) {
-        const float d = map_.keyframe_depth(nodes[i].id, kp);
-        if (d > 0.0F) {
-          map_.set_keyframe_depth(nodes[i].id, kp, static_cast<float>(d * S_new.s),
-                                  map_.keyframe_depth_confidence(nodes[i].id, kp));
-        }
-      }
-    }
-  }
-  const map::PointId np = map_.num_points();
-  map::PointView v;
-  for (map::PointId p = 0; p < np; ++p) {
-    if (!map_.read_point(p, v) || v.ref_keyframe >= node_of.size()) continue;
-    const int r = node_of[v.ref_keyframe];
-    if (r < 0) continue;
-    map_.set_point_position(p, D[static_cast<std::size_t>(r)] * v.p_w);
-  }
-  // Merge the matched points (the loop keyframe's is kept: the old map is the reference).
-  int merged = 0;
-  for (std::size_t i = 0; i < matches_.size(); ++i) {
-    if (!inlier_[i]) continue;
-    if (map_.merge_points(matches_[i].p_old, matches_[i].p_new) >= 0) ++merged;
-  }
-  // Loop fusion: the old side's points projected into the corrected window keyframes.
-  std::vector<map::KeyframeId> window_ids;
-  std::vector<map::KeyframeId> old_ids;
-  for (const int w : window) window_ids.push_back(nodes[static_cast<std::size_t>(w)].id);
-  for (const int l : loop_side) old_ids.push_back(nodes[static_cast<std::size_t>(l)].id);
-  merged += fuse_loop(window_ids, old_ids, K, rep);
-  for (const int w : window) map_.update_covisibility(nodes[static_cast<std::size_t>(w)].id);
-  map_.update_covisibility(cand);
-  const Sim3d& D_new = D[static_cast<std::size_t>(i_new)];
-  map_.publish_correction(map_.keyframe_segment(cand), D_new);
-  rep.scale = D_new.s;
-  rep.shift = (nodes[static_cast<std::size_t>(i_new)].value().t -
-               nodes[static_cast<std::size_t>(i_new)].sim_old.t)
-                  .norm();
-  rep.keyframes = static_cast<int>(nodes.size());
-  return merged;
-}
-
-int LoopCloser::fuse_loop(const std::vector<map::KeyframeId>& window,
-                          const std::vector<map::KeyframeId>& old_kfs, const geometry::Pinhole& K,
-                          LoopReport& rep) {
-  std::vector<map::PointId> old_pts;
-  for (const map::KeyframeId id : old_kfs) {
-    const std::uint32_t nk = map_.keyframe_num_keypoints(id);
-    for (std::uint32_t j = 0; j < nk; ++j) {
-      const map::PointId q = map_.keyframe_point(id, j);
-      if (q != map::kNoId && !map_.point_is_bad(q)) old_pts.push_back(q);
-    }
-  }
-  std::sort(old_pts.begin(), old_pts.end());
-  old_pts.erase(std::unique(old_pts.begin(), old_pts.end()), old_pts.end());
-  int merged = 0;
-  std::vector<int> best_dist;
-  std::vector<map::PointId> best_pt;
-  for (const map::KeyframeId w : window) {
-    SE3d T_w_c;
-    if (!map_.keyframe_is_live(w) || !map_.keyframe_pose(w, T_w_c)) continue;
-    const SE3d T_c_w = T_w_c.inverse();
-    const auto kps = map_.keyframe_keypoints(w);
-    const auto descs = map_.keyframe_descriptors(w);
-    const std::uint32_t nk = map_.keyframe_num_keypoints(w);
-    best_dist.assign(nk, std::numeric_limits<int>::max());
-    best_pt.assign(nk, map::kNoId);
-    map::PointView pv;
-    for (const map::PointId q : old_pts) {
-      if (!map_.read_point(q, pv)) continue;
-      const Eigen::Vector3d p_c = T_c_w * pv.p_w;
-      if (p_c.z() <= 0.0) continue;
-      const Eigen::Vector2d uv = K.project(p_c);
-      int best = std::numeric_limits<int>::max();
-      std::uint32_t best_k = nk;
-      for (std::uint32_t k = 0; k < nk; ++k) {
-        const features::Keypoint& kp = kps[k];
-        const double e2 = (Eigen::Vector2d(kp.x, kp.y) - uv).squaredNorm();
-        if (e2 > opts_.fuse_radius_px * opts_.fuse_radius_px * sigma2(kp)) continue;
-        const int d = features::hamming(pv.descriptor, descs[k]);
-        if (d < best) {
-          best = d;
-          best_k = k;
-        }
-      }
-      if (best_k == nk || best > opts_.max_descriptor_distance || best >= best_dist[best_k]) {
-        continue;
-      }
-      best_dist[best_k] = best;
-      best_pt[best_k] = q;
-    }
-    for (std::uint32_t k = 0; k < nk; ++k) {
-      const map::PointId q = best_pt[k];
-      if (q == map::kNoId || map_.point_is_bad(q)) continue;
-      const map::PointId p = map_.keyframe_point(w, k);
-      if (p == q) continue;
-      if (p == map::kNoId) {
-        if (map_.add_observation(q, w, k)) {
-          map_.update_point(q);
-          ++rep.fused_observations;
-        }
-      } else if (!map_.point_is_bad(p) && map_.merge_points(q, p) >= 0) {
-        ++merged;
-      }
-    }
-  }
-  return merged;
 }
 
 }  // namespace mer::loop

@@ -289,6 +289,44 @@ class LoopCloser {
   KeyframeDatabase& database() { return db_; }
 
  private:
+  /// A retrieved loop candidate (retrieve_candidates).
+  struct Candidate {
+    bool covisible = false;  ///< it shares points with the new keyframe
+    double score = 0.0;      ///< shared points, or the key score
+    map::KeyframeId id = map::kNoId;
+  };
+  /// The best-supported loop of one check (check_candidates).
+  struct Hypothesis {
+    map::KeyframeId cand = map::kNoId;
+    int matches = 0;
+    int inliers = 0;
+    geometry::Sim3d sim;  ///< S_cand_new
+    double drift = 0.0;
+    double found_new = 0.0;
+    double found_old = 0.0;
+    bool connected = false;  ///< it shared points with the new keyframe
+    double usual = 0.0;      ///< usual_found_share of the new keyframe
+  };
+  // The steps of spin_once, in order.
+  /// Retrieval into ranked_: old keyframes the new one shares points with (by shared points),
+  /// then those whose key score passes the bar (by score), at most max_candidates.
+  void retrieve_candidates(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment);
+  /// Geometric check of every candidate; the one whose similarity explains the most matches
+  /// and passes the drift and both-ways checks wins (cand kNoId: none).
+  Hypothesis check_candidates(map::KeyframeId kf, std::uint16_t segment, const geometry::Pinhole& K,
+                              LoopReport& rep);
+  /// Consistency over consecutive keyframes, then the merge and correction of a loop seen
+  /// often enough (a merge re-expresses best.sim in the joined map's units).
+  void decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment, Hypothesis& best,
+              const geometry::Pinhole& K, LoopReport& rep);
+  /// After a closure, without the writer lock: the full BA and the totals.
+  void finish_closure(map::KeyframeId kf, std::uint64_t serial, const geometry::Pinhole& K,
+                      LoopReport& rep);
+  std::vector<Candidate> ranked_;  // retrieve_candidates' result
+  /// Keyframes of the candidate's neighbourhood tied to the corrected one by loop edges.
+  static constexpr std::size_t kLoopNeighbours = 6;
+  /// Covisible keyframes read per keyframe (map.max_covisible_per_keyframe bounds it anyway).
+  static constexpr std::size_t kMaxCovisible = 64;
   struct Match {
     std::uint32_t kp_new = 0;
     std::uint32_t kp_old = 0;
@@ -361,8 +399,24 @@ class LoopCloser {
   /// loop correction that follows does not apply it a second time.
   void merge_segments(map::KeyframeId kf, map::KeyframeId cand, geometry::Sim3d& S_cand_new,
                       LoopReport& rep);
+  /// Corrects the loop's segment (loop_correction.cpp): the pose graph of its keyframes with
+  /// the loop's edges, solved with the candidate fixed, applied to keyframes and points; the
+  /// matched points merged and the loop's points fused. Returns the points merged.
   int correct(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
               const geometry::Pinhole& K, LoopReport& rep);
+  struct PoseGraph;  // loop_correction.cpp
+  /// The nodes (the segment's live keyframes), the window moved with the new keyframe by the
+  /// loop's correction and the solve's start; false when either keyframe is not a node.
+  bool load_pose_graph(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
+                       PoseGraph& g) const;
+  /// Sequential, covisibility and earlier loops' edges, the loop edges (remembered for the
+  /// next loops) and the solve.
+  void solve_pose_graph(PoseGraph& g);
+  /// The solved poses into the map (depths scaled), points moved with their reference
+  /// keyframe, matched points merged, loop fusion, the correction published. Returns the
+  /// points merged.
+  int apply_correction(PoseGraph& g, map::KeyframeId cand, const geometry::Pinhole& K,
+                       LoopReport& rep);
   float sigma2(const features::Keypoint& k) const;
   /// Projects the points of `old_kfs` into each of `window` (corrected poses) and matches them
   /// to keypoints by descriptor (chi-square gate at the keypoint's sigma): a free keypoint
