@@ -204,6 +204,16 @@ class Tracker {
   StartPoll poll_segment_start();
   /// Updates the state machine after a frame (tracked or not) and fills r's state fields.
   void advance_state(TrackingResult& r);
+  /// Takes a pending relocalizer's pose (tracking.relocalization_check): trusted within the
+  /// motion bound, else a candidate the following frames must confirm, refused outside the
+  /// bound after a short loss. True when the frame is searched from it.
+  bool take_hint(const hal::Frame& frame);
+  /// A frame tracked from a relocalization candidate: refuses it when the frame finds too
+  /// small a share of the points in view (`found`), holds it until enough frames confirmed
+  /// it (false: the frame is reported lost) and then sets `confirmed`.
+  bool confirm_candidate(const hal::Frame& frame, double found, TrackingResult& r, bool& confirmed);
+  /// The keyframe decision of a tracked frame (a relocalization's frame is one).
+  void decide_keyframe(const hal::Frame& frame, bool from_hint, bool confirmed, TrackingResult& r);
   /// At the first lost frame of a spell: counts a failed start (TrackerCounters) when the
   /// latest start's segment is lost within init.failed_start_window_s of it with at most
   /// init.failed_start_max_keyframes keyframes; true for such a failed start.
