@@ -326,7 +326,8 @@ void write_backend_loop_relocalization(std::ostream& j, const pipeline::Pipeline
     << ", \"rejected\": {\"few_matches\": " << lp.rejected.few_matches
     << ", \"few_inliers\": " << lp.rejected.few_inliers << ", \"drift\": " << lp.rejected.drift
     << ", \"not_found\": " << lp.rejected.not_found
-    << ", \"inconsistent\": " << lp.rejected.inconsistent << "}},\n";
+    << ", \"inconsistent\": " << lp.rejected.inconsistent
+    << ", \"merge_refused\": " << lp.rejected.merge_refused << "}},\n";
   const pipeline::RelocalizationStats& rl = st.relocalization;
   j << "  \"relocalization\": {\"enabled\": " << (rl.enabled ? "true" : "false")
     << ", \"lost_spells\": " << tc.lost_spells << ", \"max_lost_frames\": " << tc.max_lost_frames

@@ -202,6 +202,10 @@ class MapCuller {
   std::vector<map::CovisibleKeyframe> parent_covis_;  // max_covisible_per_keyframe
   std::vector<CulledKeyframe> lineage_;               // ring of lineage_capacity
   std::size_t lineage_count_ = 0;
+  // Map::discarded_segments() when a pass last left no keyframe of a discarded segment live
+  // (the scan is skipped until the next discard). A keyframe job of a discarded segment
+  // inserted after that stays, flagged: relocalization and loops skip it.
+  std::uint32_t discards_cleared_ = 0;
   std::size_t lineage_next_ = 0;
 };
 

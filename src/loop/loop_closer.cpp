@@ -325,7 +325,15 @@ void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t 
       rep.drift = best.drift;
       rep.connected = best.connected;
       rep.found_usual = best.usual;
-      if (map_.keyframe_segment(cand) != segment) merge_segments(kf, cand, best.sim, rep);
+      if (map_.keyframe_segment(cand) != segment) {
+        merge_segments(kf, cand, best.sim, rep);
+        // Refused by the map (the tracker discarded a segment meanwhile, lock-free): the two
+        // are still in unrelated frames, nothing to correct.
+        if (rep.merged_from == map::kNoSegment) {
+          ++totals_.rejected.merge_refused;
+          return;
+        }
+      }
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
       rep.closed = true;
     }

@@ -243,11 +243,12 @@ struct LoopClosureEvent {
 
 /// Loop hypotheses refused, by reason (summary.json `loop.rejected`).
 struct LoopRejections {
-  std::uint64_t few_matches = 0;   ///< a candidate with fewer than min_matches point matches
-  std::uint64_t few_inliers = 0;   ///< no similarity explained min_inliers of them
-  std::uint64_t drift = 0;         ///< the correction was implausible (max_drift_fraction)
-  std::uint64_t not_found = 0;     ///< not confirmed both ways (min_found_fraction)
-  std::uint64_t inconsistent = 0;  ///< seen once, not again by the next keyframes
+  std::uint64_t few_matches = 0;    ///< a candidate with fewer than min_matches point matches
+  std::uint64_t few_inliers = 0;    ///< no similarity explained min_inliers of them
+  std::uint64_t drift = 0;          ///< the correction was implausible (max_drift_fraction)
+  std::uint64_t not_found = 0;      ///< not confirmed both ways (min_found_fraction)
+  std::uint64_t inconsistent = 0;   ///< seen once, not again by the next keyframes
+  std::uint64_t merge_refused = 0;  ///< the map refused the merge (a segment discarded meanwhile)
 };
 
 /// Closed loops kept per run, at most (later ones are only counted).

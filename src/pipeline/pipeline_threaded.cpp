@@ -261,7 +261,8 @@ void Pipeline::Threaded::depth() {
         }
         const map::KeyframeJob& job = p.jobs_[slot];
         const depth::KeyframeBuildReport rep = p.build_keyframe(job);
-        if (rep.segment_start) {  // a segment's start: nothing to optimize or cull yet
+        if (rep.segment_start) {  // a segment's start: nothing to optimize or cull yet,
+          (void)p.culler_->remove_discarded_segments();  // but failed starts before it go
           (void)free_ring->try_push(slot);
           return;
         }
