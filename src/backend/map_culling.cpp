@@ -130,7 +130,7 @@ bool MapCuller::remove(map::KeyframeId kf, CullingReport& rep) {
 }
 
 int MapCuller::remove_discarded_segments() {
-  if (map_.discarded_segments() == discards_cleared_) return 0;
+  if (map_.discarded_segments() == discards_cleared_.load(std::memory_order_relaxed)) return 0;
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
   CullingReport rep;
   remove_discarded(rep);
@@ -139,7 +139,7 @@ int MapCuller::remove_discarded_segments() {
 
 void MapCuller::remove_discarded(CullingReport& rep) {
   const std::uint32_t discards = map_.discarded_segments();
-  if (discards == discards_cleared_) return;
+  if (discards == discards_cleared_.load(std::memory_order_relaxed)) return;
   const int orphaned_before = rep.orphaned_points;
   bool left = false;  // a keyframe of a discarded segment stays live (the map's newest)
   const map::KeyframeId n = map_.num_keyframes();
@@ -156,7 +156,9 @@ void MapCuller::remove_discarded(CullingReport& rep) {
       left = true;
     }
   }
-  if (!left) discards_cleared_ = discards;  // later passes skip the scan until a new discard
+  if (!left)
+    discards_cleared_.store(
+        discards, std::memory_order_relaxed);  // later passes skip the scan until a new discard
   const auto orphaned = static_cast<std::uint64_t>(rep.orphaned_points - orphaned_before);
   totals_.discarded_keyframes += static_cast<std::uint64_t>(rep.discarded_keyframes);
   totals_.culled_points += orphaned;
@@ -236,7 +238,10 @@ void MapCuller::cull_at_capacity(CullingReport& rep) {
 
 CullingReport MapCuller::spin_once(map::KeyframeId newest) {
   CullingReport rep;
-  if (!opts_.enabled && map_.discarded_segments() == discards_cleared_) return rep;
+  if (!opts_.enabled &&
+      map_.discarded_segments() == discards_cleared_.load(std::memory_order_relaxed)) {
+    return rep;
+  }
   const std::lock_guard<platform::PiMutex> lock(map_.writer_lock());
   const auto t0 = platform::monotonic_now_ns();  // after the wait: `ms` is the work
   remove_discarded(rep);

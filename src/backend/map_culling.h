@@ -38,6 +38,7 @@
 /// keypoints and their points' observations; at capacity, one such pass over every live
 /// keyframe and two passes over the point slots. No allocation after construction.
 
+#include <atomic>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -204,8 +205,9 @@ class MapCuller {
   std::size_t lineage_count_ = 0;
   // Map::discarded_segments() when a pass last left no keyframe of a discarded segment live
   // (the scan is skipped until the next discard). A keyframe job of a discarded segment
-  // inserted after that stays, flagged: relocalization and loops skip it.
-  std::uint32_t discards_cleared_ = 0;
+  // inserted after that stays, flagged: relocalization and loops skip it. Atomic: threaded,
+  // the depth thread (a segment's start) and the back end read it before the writer lock.
+  std::atomic<std::uint32_t> discards_cleared_{0};
   std::size_t lineage_next_ = 0;
 };
 
