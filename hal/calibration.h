@@ -11,14 +11,14 @@ namespace mer::hal {
 /// Calibration override (config section `camera.calibration`, or `--intrinsics`).
 /// Zero focal length means "use the source's own calibration".
 struct CalibrationOptions {
-  double fx = 0.0;  ///< focal length x, px (0: from the source)
-  double fy = 0.0;  ///< focal length y, px (0: from the source)
-  double cx = 0.0;  ///< principal point x, px
-  double cy = 0.0;  ///< principal point y, px
-  double k1 = 0.0;  ///< radial distortion k1
-  double k2 = 0.0;  ///< radial distortion k2
-  double p1 = 0.0;  ///< tangential distortion p1
-  double p2 = 0.0;  ///< tangential distortion p2
+  double fx = 0.0;
+  double fy = 0.0;
+  double cx = 0.0;
+  double cy = 0.0;
+  double k1 = 0.0;
+  double k2 = 0.0;
+  double p1 = 0.0;
+  double p2 = 0.0;
 
   template <class V>
   void visit(V& v) {

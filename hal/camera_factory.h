@@ -32,12 +32,12 @@ Result<InputUri> parse_input_uri(std::string_view uri);
 
 /// Options of the camera layer (config section `camera`).
 struct CameraOptions {
-  int pool_size = 8;               ///< frame buffers in the capture pool (bounds frames in flight)
-  CalibrationOptions calibration;  ///< intrinsics override
-  SyntheticOptions synthetic;      ///< the synthetic camera (`synthetic:` inputs)
-  ReplayOptions replay;            ///< dataset and recording replay
-  V4l2Options v4l2;                ///< V4L2 devices (`v4l2:` inputs)
-  LibcameraOptions libcamera;      ///< libcamera devices (`libcamera:` inputs)
+  int pool_size = 8;
+  CalibrationOptions calibration;
+  SyntheticOptions synthetic;
+  ReplayOptions replay;
+  V4l2Options v4l2;
+  LibcameraOptions libcamera;
 
   template <class V>
   void visit(V& v) {

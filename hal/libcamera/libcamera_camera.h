@@ -22,13 +22,13 @@ inline constexpr std::array<std::string_view, 7> kLibcameraFormats{
 
 /// Options of the libcamera backend (config section `camera.libcamera`).
 struct LibcameraOptions {
-  int width = 640;                    ///< requested width, px (the pipeline may adjust it)
-  int height = 480;                   ///< requested height, px
-  double fps = 30.0;                  ///< requested frame rate (FrameDurationLimits), Hz
-  std::string pixel_format = "auto";  ///< auto picks the first supported, gray formats first
-  int buffers = 4;                    ///< frame buffers allocated by libcamera
-  int dequeue_timeout_ms = 1000;      ///< acquire() waits this long for a completed request
-  double hfov_deg = 60.0;  ///< assumed horizontal field of view for the initial focal guess
+  int width = 640;
+  int height = 480;
+  double fps = 30.0;
+  std::string pixel_format = "auto";
+  int buffers = 4;
+  int dequeue_timeout_ms = 1000;
+  double hfov_deg = 60.0;
 
   template <class V>
   void visit(V& v) {

@@ -45,10 +45,10 @@ inline constexpr int kMaxReplayPrefetch = 32;
 
 /// Options of dataset/recording replay (config section `camera.replay`).
 struct ReplayOptions {
-  int prefetch = 4;                ///< frames decoded ahead of the consumer (< pool size)
-  int max_consecutive_skips = 10;  ///< more unusable frames in a row end the stream (error)
-  double depth_scale = 5000.0;     ///< TUM 16-bit depth units per metre
-  double max_time_diff_s = 0.02;   ///< rgb-depth association / ground-truth interpolation bound
+  int prefetch = 4;
+  int max_consecutive_skips = 10;
+  double depth_scale = 5000.0;
+  double max_time_diff_s = 0.02;
 
   /// Names every field once with its key, doc line and range (see core/options.h).
   template <class V>

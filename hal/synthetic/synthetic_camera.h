@@ -38,51 +38,51 @@ inline constexpr std::string_view kPhotoPackage = "mate-backgrounds";
 
 /// Options of the synthetic camera (config section `camera.synthetic`).
 struct SyntheticOptions {
-  int width = 640;                  ///< image width, px
-  int height = 480;                 ///< image height, px
-  double fov_x_deg = 70.0;          ///< horizontal field of view (sets fx = fy)
-  double fps = 30.0;                ///< frame rate; timestamps advance by 1/fps
-  int num_frames = 600;             ///< frames in the sequence (then end of stream)
-  double noise_sigma = 2.0;         ///< additive Gaussian image noise, grey levels (0: none)
-  double exposure_amplitude = 0.0;  ///< exposure gain varies as 1 + A sin(2 pi t / period)
-  double exposure_period_s = 7.0;   ///< period of the exposure variation, s
-  int seed = 1;                     ///< seed of textures, boxes and noise
-  bool render_depth = true;         ///< also render per-pixel depth (for RGB-D mode)
-  double room_size_x = 6.0;         ///< room extent along world x, m
-  double room_size_y = 5.0;         ///< room extent along world y, m
-  double room_height = 2.6;         ///< room height, m
-  int num_boxes = 6;                ///< textured boxes standing in the room (0..16)
-  int texture_size = 512;           ///< texels per wall side
-  double kidnap_start_s = 8.0;      ///< room_kidnap, room_repeated: when the image goes black, s
-  double kidnap_black_s = 1.0;      ///< room_kidnap, room_repeated: how long it stays black, s
-  double kidnap_back_s = 6.0;       ///< room_kidnap: how far back in time the camera reappears, s
-  double rotation_burst_s = 2.0;    ///< room_fast_rotation: duration of each 360 deg turn, s
-  double hall_size_x = 80.0;        ///< hall_drive: hall extent along world x, m
-  double hall_size_y = 50.0;        ///< hall_drive: hall extent along world y, m
-  double hall_height = 10.0;        ///< hall_drive: hall height, m
-  double drive_speed_mps = 5.6;     ///< hall_drive, hall_repeated: driving speed, m/s
-  std::string texture = "auto";     ///< auto | procedural | photo (kSyntheticTextures)
-  std::string photo_dir{kDefaultPhotoDir};  ///< photo textures: folder searched for *.jpg
-  std::string photo_set = "all";            ///< photo textures: all | dev | heldout
-  double exposure_time_s = 0.0;             ///< motion blur: exposure time, s (0: no blur)
-  int blur_samples = 5;                     ///< motion blur: renders averaged over the exposure
-  double exposure_step_every_s = 0.0;  ///< exposure steps: a gain jump every this many s (0: off)
-  double exposure_step_size = 0.25;    ///< exposure steps: each jump scales the gain by 1 +- this
-  double turn_angle_deg = 95.0;        ///< hall_turn: the first turn (left), degrees
-  double turn_duration_s = 4.0;        ///< hall_turn: duration of each turn, s
-  double turn_speed_mps = 3.5;         ///< hall_turn: speed through the turns, m/s
-  double walk_speed_mps = 0.25;        ///< room_explore: walking speed, m/s
-  double sweep_yaw_deg = 40.0;         ///< room_rotation: yaw sweep amplitude, degrees
-  double sweep_pitch_deg = 15.0;       ///< room_rotation: pitch sweep amplitude, degrees
-  double sweep_period_s = 6.0;         ///< room_rotation: period of the yaw sweep, s
-  double sweep_translation_m = 0.03;   ///< room_rotation: hand translation amplitude, m
-  double corridor_length = 24.0;       ///< corridor: length, m
-  double corridor_width = 2.0;         ///< corridor: width, m
-  double corridor_height = 2.5;        ///< corridor: height, m
-  double corridor_speed_mps = 1.0;     ///< corridor: walking speed, m/s
-  double corridor_contrast = 0.12;     ///< corridor: photo contrast kept on the white walls (0..1)
-  double kidnap_return_s = 6.0;        ///< room_kidnap_unknown: walk back to the mapped part, s
-  int repeat_texture = 0;  ///< look-alike places: copies of one photo panel on the walls (0: off)
+  int width = 640;
+  int height = 480;
+  double fov_x_deg = 70.0;
+  double fps = 30.0;
+  int num_frames = 600;
+  double noise_sigma = 2.0;
+  double exposure_amplitude = 0.0;
+  double exposure_period_s = 7.0;
+  int seed = 1;
+  bool render_depth = true;
+  double room_size_x = 6.0;
+  double room_size_y = 5.0;
+  double room_height = 2.6;
+  int num_boxes = 6;
+  int texture_size = 512;
+  double kidnap_start_s = 8.0;
+  double kidnap_black_s = 1.0;
+  double kidnap_back_s = 6.0;
+  double rotation_burst_s = 2.0;
+  double hall_size_x = 80.0;
+  double hall_size_y = 50.0;
+  double hall_height = 10.0;
+  double drive_speed_mps = 5.6;
+  std::string texture = "auto";
+  std::string photo_dir{kDefaultPhotoDir};
+  std::string photo_set = "all";
+  double exposure_time_s = 0.0;
+  int blur_samples = 5;
+  double exposure_step_every_s = 0.0;
+  double exposure_step_size = 0.25;
+  double turn_angle_deg = 95.0;
+  double turn_duration_s = 4.0;
+  double turn_speed_mps = 3.5;
+  double walk_speed_mps = 0.25;
+  double sweep_yaw_deg = 40.0;
+  double sweep_pitch_deg = 15.0;
+  double sweep_period_s = 6.0;
+  double sweep_translation_m = 0.03;
+  double corridor_length = 24.0;
+  double corridor_width = 2.0;
+  double corridor_height = 2.5;
+  double corridor_speed_mps = 1.0;
+  double corridor_contrast = 0.12;
+  double kidnap_return_s = 6.0;
+  int repeat_texture = 0;
 
   template <class V>
   void visit(V& v) {

@@ -24,16 +24,16 @@ inline constexpr int kV4l2MinBuffers = 2;
 
 /// Options of a `v4l2:/dev/videoN` camera.
 struct V4l2Options {
-  int width = 640;                    ///< requested image width, px (must be offered exactly)
-  int height = 480;                   ///< requested image height, px
-  double fps = 30.0;                  ///< frame rate set with VIDIOC_S_PARM, Hz
-  std::string pixel_format = "auto";  ///< GREY | YUYV | NV12 | auto
-  int buffers = 4;                    ///< mmap buffers queued in the driver
-  std::string on_error = "stop";      ///< mid-stream device error: stop, or retry (close, reopen)
-  int max_retries = 3;                ///< reopen attempts per error before giving up (retry)
-  int retry_delay_ms = 500;           ///< wait before each reopen attempt, ms
-  int dequeue_timeout_ms = 2000;      ///< no frame for this long while streaming = device error
-  double hfov_deg = 60.0;             ///< horizontal field of view guess for the initial focal
+  int width = 640;
+  int height = 480;
+  double fps = 30.0;
+  std::string pixel_format = "auto";
+  int buffers = 4;
+  std::string on_error = "stop";
+  int max_retries = 3;
+  int retry_delay_ms = 500;
+  int dequeue_timeout_ms = 2000;
+  double hfov_deg = 60.0;
 
   template <class V>
   void visit(V& v) {

@@ -5,6 +5,8 @@
 #include <csignal>
 #include <filesystem>
 #include <iostream>
+#include <string>
+#include <vector>
 
 #include "app/cli.h"
 #include "app/depth_maps.h"
@@ -23,6 +25,90 @@ std::atomic<bool>& g_stop = mer::app::stop_flag();
 int fail(const mer::Status& s) {
   std::cerr << "mer_slam: error: " << s.message() << "\n";
   return mer::app::exit_code_for(s);
+}
+
+/// Creates --output's directory (an empty path: no output).
+mer::Status make_output_dir(const std::string& dir) {
+  if (dir.empty()) return mer::Status::ok();
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec || !std::filesystem::is_directory(dir)) {
+    return mer::invalid_argument("--output '" + dir + "': cannot create directory" +
+                                 (ec ? ": " + ec.message() : std::string()));
+  }
+  return mer::Status::ok();
+}
+
+/// Scores the written trajectories against the ground truth: the run, its keyframes, each
+/// segment (its file, and its own frames aligned on their own) and the events.
+void evaluate_outputs(const std::string& out, mer::SensorMode mode,
+                      const mer::pipeline::Pipeline& pipe, mer::app::RunInfo& info) {
+  using namespace mer;
+  const pipeline::PipelineStats& stats = pipe.stats();
+  info.accuracy = app::evaluate_run(out, mode, stats);
+  info.accuracy_keyframes = app::evaluate_run(out, mode, stats, "keyframes_final.txt");
+  app::AccuracyReport discarded;
+  discarded.note = "discarded (a failed start)";
+  for (const pipeline::SegmentStats& g : stats.segments) {
+    info.accuracy_segments.push_back(
+        g.discarded ? discarded : app::evaluate_run(out, mode, stats, g.trajectory));
+  }
+  // Each segment's own frames, aligned on their own: the same as its file's unless
+  // segments merged (a merged segment's frames are in the file it joined).
+  for (const pipeline::SegmentStats& g : stats.segments) {
+    info.accuracy_segments_own.push_back(
+        g.discarded                 ? discarded
+        : stats.segments.size() > 1 ? app::evaluate_run(out, mode, stats, g.trajectory, g.id)
+                                    : info.accuracy_segments.back());
+  }
+  // An event is scored in its segment's own frame, as it was when it happened.
+  info.events = app::audit_events(out, stats, info.accuracy_segments_own);
+}
+
+/// The final map re-anchors trajectory.txt's frames: the main segment's and those of the
+/// segments that joined it, each anchor scaled by its segment's merges. Writes and scores
+/// trajectory_final.txt; false on a write error (reported).
+bool write_final_trajectory(const std::string& out, mer::SensorMode mode,
+                            mer::pipeline::Pipeline& pipe, mer::app::RunInfo& info) {
+  using namespace mer;
+  if (out.empty() || pipe.stats().frames_processed == 0) return true;
+  std::uint16_t main_segment = 0;
+  for (const pipeline::SegmentStats& g : pipe.stats().segments) {
+    if (g.main) main_segment = g.id;
+  }
+  const std::vector<double> scales = pipe.segment_scales_into_main();
+  if (Status w = app::write_final_trajectory(out, pipe.final_keyframe_poses(),
+                                             info.final_trajectory, scales, main_segment);
+      !w.is_ok()) {
+    std::cerr << "mer_slam: error: final trajectory: " << w.message() << "\n";
+    return false;
+  }
+  info.final_trajectory_written = true;
+  info.accuracy_final = app::evaluate_run(out, mode, pipe.stats(), "trajectory_final.txt");
+  return true;
+}
+
+/// --gt-check: the finished map checked against the ground truth. False on an error
+/// (reported).
+bool check_map_against_truth(const mer::app::CliArgs& args, const mer::app::SlamConfig& config,
+                             mer::pipeline::Pipeline& pipe, mer::app::RunInfo& info) {
+  using namespace mer;
+  info.gt_check_requested = true;
+  Status g = Status::ok();
+  if (pipe.stats().frames_processed == 0) {
+    info.gt_check.note = "no frame processed";
+  } else if (info.stopped_by_signal) {
+    info.gt_check.note = "stopped by a signal";  // the summary is due now
+  } else {
+    g = app::run_gt_check(args.output_dir, config.pipeline.mode, config.backend.full_max_iterations,
+                          pipe, info.gt_check, info.accuracy_gt_converged,
+                          info.accuracy_gt_shuffled, info.accuracy_gt_shuffled_detected);
+  }
+  if (!g.is_ok()) {
+    std::cerr << "mer_slam: error: --gt-check: " << g.message() << "\n";
+    return false;
+  }
+  return true;
 }
 
 }  // namespace
@@ -86,15 +172,9 @@ int main(int argc, char** argv) {
     }
     info.source = camera.describe();
     info.intrinsics = hal::effective_intrinsics(camera.intrinsics(), config.camera.calibration);
-
-    if (!args.output_dir.empty()) {
-      std::error_code ec;
-      std::filesystem::create_directories(args.output_dir, ec);
-      if (ec || !std::filesystem::is_directory(args.output_dir)) {
-        drain.stop();
-        return fail(invalid_argument("--output '" + args.output_dir + "': cannot create directory" +
-                                     (ec ? ": " + ec.message() : std::string())));
-      }
+    if (Status s = make_output_dir(args.output_dir); !s.is_ok()) {
+      drain.stop();
+      return fail(s);
     }
     pipeline::PipelineConfig pc{config.pipeline, config.board,    config.telemetry,
                                 config.output,   config.tracking, config.map,
@@ -113,66 +193,11 @@ int main(int argc, char** argv) {
       code = app::exit_code_for(s);
     }
     drain.stop();  // print pending warnings before the summary
-    info.accuracy = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats());
-    info.accuracy_keyframes = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
-                                                "keyframes_final.txt");
-    app::AccuracyReport discarded;
-    discarded.note = "discarded (a failed start)";
-    for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      info.accuracy_segments.push_back(g.discarded ? discarded
-                                                   : app::evaluate_run(args.output_dir,
-                                                                       config.pipeline.mode,
-                                                                       pipe.stats(), g.trajectory));
-    }
-    // Each segment's own frames, aligned on their own: the same as its file's unless
-    // segments merged (a merged segment's frames are in the file it joined).
-    for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-      info.accuracy_segments_own.push_back(g.discarded ? discarded
-                                           : pipe.stats().segments.size() > 1
-                                               ? app::evaluate_run(args.output_dir,
-                                                                   config.pipeline.mode,
-                                                                   pipe.stats(), g.trajectory, g.id)
-                                               : info.accuracy_segments.back());
-    }
-    // An event is scored in its segment's own frame, as it was when it happened.
-    info.events = app::audit_events(args.output_dir, pipe.stats(), info.accuracy_segments_own);
-    // The final map re-anchors trajectory.txt's frames: the main segment's and those of the
-    // segments that joined it, each anchor scaled by its segment's merges.
-    if (!args.output_dir.empty() && pipe.stats().frames_processed > 0) {
-      std::uint16_t main_segment = 0;
-      for (const pipeline::SegmentStats& g : pipe.stats().segments) {
-        if (g.main) main_segment = g.id;
-      }
-      const std::vector<double> scales = pipe.segment_scales_into_main();
-      if (Status w = app::write_final_trajectory(args.output_dir, pipe.final_keyframe_poses(),
-                                                 info.final_trajectory, scales, main_segment);
-          w.is_ok()) {
-        info.final_trajectory_written = true;
-        info.accuracy_final = app::evaluate_run(args.output_dir, config.pipeline.mode, pipe.stats(),
-                                                "trajectory_final.txt");
-      } else {
-        std::cerr << "mer_slam: error: final trajectory: " << w.message() << "\n";
-        if (code == 0) code = 4;
-      }
-    }
-    if (args.gt_check) {
-      info.gt_check_requested = true;
-      Status g = Status::ok();
-      if (pipe.stats().frames_processed == 0) {
-        info.gt_check.note = "no frame processed";
-      } else if (info.stopped_by_signal) {
-        info.gt_check.note = "stopped by a signal";  // the summary is due now
-      } else {
-        g = app::run_gt_check(args.output_dir, config.pipeline.mode,
-                              config.backend.full_max_iterations, pipe, info.gt_check,
-                              info.accuracy_gt_converged, info.accuracy_gt_shuffled,
-                              info.accuracy_gt_shuffled_detected);
-      }
-      if (!g.is_ok()) {
-        std::cerr << "mer_slam: error: --gt-check: " << g.message() << "\n";
-        if (code == 0) code = 4;
-      }
-    }
+    evaluate_outputs(args.output_dir, config.pipeline.mode, pipe, info);
+    const bool final_written =
+        write_final_trajectory(args.output_dir, config.pipeline.mode, pipe, info);
+    const bool gt_checked = !args.gt_check || check_map_against_truth(args, config, pipe, info);
+    if ((!final_written || !gt_checked) && code == 0) code = 4;
     if (!args.output_dir.empty()) {
       const std::string path = (std::filesystem::path(args.output_dir) / "summary.json").string();
       if (Status w = app::write_file_atomic(path, app::summary_json(pipe.stats(), info));

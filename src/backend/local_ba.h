@@ -51,6 +51,7 @@
 #include <utility>
 #include <vector>
 
+#include "core/chi2.h"
 #include "core/options.h"
 #include "geometry/camera_model.h"
 #include "map/map.h"
@@ -74,23 +75,21 @@ DepthEdgeMode resolve_depth_edges(DepthEdgeSetting s, bool metric_depth);
 
 /// Options of the local optimization (config section `backend`).
 struct LocalBaOptions {
-  bool enabled = true;                 ///< run local bundle adjustment after each keyframe
-  int window_keyframes = 8;            ///< keyframes optimized (the new one + most covisible)
-  int max_fixed_keyframes = 16;        ///< keyframes held fixed (most shared points first)
-  int max_iterations = 10;             ///< Levenberg-Marquardt iterations per solve
-  double max_time_ms = 50.0;           ///< wall-time budget of one run (all solves), ms
-  double huber_sigmas = 2.45;          ///< Huber kernel width, keypoint sigmas (sqrt of chi2 95 %)
-  double anchored_sigma_scale = 0.15;  ///< sigma of an anchored keypoint, x its level's sigma
-  int anchored_min_observations = 3;   ///< anchored keypoints a point needs for that sigma
-  double outlier_chi2 = 5.991;         ///< squared error / sigma^2 above this is an outlier
-  bool resolve_without_outliers = true;  ///< local runs: solve again with the outliers removed
-  int min_inlier_observations = 2;       ///< points with fewer consistent observations are culled
-  int full_max_iterations = 100;         ///< iterations of a full-graph optimization (--final-ba)
-  /// 3D-3D edges: auto (metric in rgbd mode, else off), off, metric (depth as is), scaled
-  /// (per-keyframe scale).
+  bool enabled = true;
+  int window_keyframes = 8;
+  int max_fixed_keyframes = 16;
+  int max_iterations = 10;
+  double max_time_ms = 50.0;
+  double huber_sigmas = 2.45;
+  double anchored_sigma_scale = 0.15;
+  int anchored_min_observations = 3;
+  double outlier_chi2 = kChi2TwoDof95;
+  bool resolve_without_outliers = true;
+  int min_inlier_observations = 2;
+  int full_max_iterations = 100;
   DepthEdgeSetting depth_edges = DepthEdgeSetting::kAuto;
-  double depth_sigma_rel = 0.01;      ///< sigma of a 3D-3D edge at confidence 1, fraction of depth
-  double depth_outlier_chi2 = 3.841;  ///< squared depth error / sigma^2 above this: outlier
+  double depth_sigma_rel = 0.01;
+  double depth_outlier_chi2 = kChi2OneDof95;
 
   template <class V>
   void visit(V& v) {

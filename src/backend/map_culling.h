@@ -50,18 +50,18 @@ namespace mer::backend {
 
 /// Options of map culling (config section `culling`).
 struct CullingOptions {
-  bool enabled = true;                  ///< cull points and keyframes after each keyframe
-  double keyframe_redundancy = 0.9;     ///< redundant-point fraction that removes a keyframe
-  int redundant_observers = 3;          ///< other keyframes that make one of its points redundant
-  int redundant_level_slack = 1;        ///< their pyramid level may exceed its own by this much
-  int keep_newest_keyframes = 5;        ///< the newest keyframes are never removed
-  int point_recent_keyframes = 3;       ///< points at most this many keyframes old are checked
-  double point_min_found_ratio = 0.0;   ///< found / visible below this frees a recent point
-  int point_check_after_keyframes = 2;  ///< age from which the observation count is checked
-  int point_min_observations = 0;       ///< fewer observations free a point (0: auto by mode)
-  double capacity_fraction = 0.9;       ///< live share of map slots that triggers removals
-  int max_capacity_removals = 2;        ///< keyframes removed per pass at capacity
-  int lineage_capacity = 16384;         ///< removed keyframes remembered for re-anchoring
+  bool enabled = true;
+  double keyframe_redundancy = 0.9;
+  int redundant_observers = 3;
+  int redundant_level_slack = 1;
+  int keep_newest_keyframes = 5;
+  int point_recent_keyframes = 3;
+  double point_min_found_ratio = 0.0;
+  int point_check_after_keyframes = 2;
+  int point_min_observations = 0;
+  double capacity_fraction = 0.9;
+  int max_capacity_removals = 2;
+  int lineage_capacity = 16384;
 
   template <class V>
   void visit(V& v) {

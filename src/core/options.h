@@ -4,7 +4,8 @@
 /// a `visit(V&)` member that names each field once, with its key, a doc line and its
 /// constraint. The same description drives loading from YAML (config_io.h), validation,
 /// printing (`mer_slam --print-config`) and docs, so a field cannot be loaded but not
-/// validated or printed.
+/// validated or printed. The doc line is the field's one documentation: the member itself
+/// carries no comment that could drift from it.
 ///
 /// @code
 /// struct TrackingOptions {

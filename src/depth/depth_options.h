@@ -46,15 +46,15 @@ inline constexpr std::array<std::string_view, 3> kMergeModeNames{"auto", "on", "
 
 /// Options of the `triangulation` backend.
 struct TriangulationOptions {
-  int max_hamming = 50;           ///< largest descriptor distance of an epipolar match
-  double ratio = 0.7;             ///< best / second-best distance ratio of a match
-  double epipolar_sigmas = 2.0;   ///< epipolar band half-width, in keypoint sigmas (chi2-like)
-  double min_parallax_deg = 1.0;  ///< less parallax: no depth (too uncertain)
-  double full_confidence_parallax_deg = 6.0;  ///< parallax giving confidence 1
-  double max_reprojection_sigmas = 2.5;       ///< reprojection error bound in both views, sigmas
-  int max_level_difference = 1;               ///< pyramid levels a match may differ by
-  double max_scale_inconsistency = 1.5;       ///< distance ratio vs keypoint scale ratio tolerance
-  int min_views = 3;                          ///< views (with the keyframe) that must agree
+  int max_hamming = 50;
+  double ratio = 0.7;
+  double epipolar_sigmas = 2.0;
+  double min_parallax_deg = 1.0;
+  double full_confidence_parallax_deg = 6.0;
+  double max_reprojection_sigmas = 2.5;
+  int max_level_difference = 1;
+  double max_scale_inconsistency = 1.5;
+  int min_views = 3;
 
   template <class V>
   void visit(V& v) {
@@ -86,8 +86,8 @@ struct TriangulationOptions {
 
 /// Options of the `rgbd` backend.
 struct RgbdDepthOptions {
-  double min_depth_m = 0.1;  ///< closer sensor readings are ignored, m
-  double max_depth_m = 8.0;  ///< farther sensor readings are ignored, m
+  double min_depth_m = 0.1;
+  double max_depth_m = 8.0;
 
   template <class V>
   void visit(V& v) {
@@ -101,17 +101,16 @@ struct RgbdDepthOptions {
 /// Options of the `external` backend: depth maps read from a folder, one per frame, named by
 /// capture time (e.g. a learned model's output recorded offline).
 struct ExternalDepthOptions {
-  std::string folder;              ///< folder of the depth maps (required by the backend)
-  std::string format = "auto";     ///< auto (by extension), png16, float32 (PFM)
-  std::string time_unit = "auto";  ///< file-name timestamps: auto, s, ns
-  double depth_scale = 5000.0;     ///< png16: stored units per depth unit (TUM: 5000 per m)
-  double max_time_diff_s = 0.02;   ///< largest keyframe-to-map time difference, s
-  /// unknown (up to scale, aligned to the map) or metric
+  std::string folder;
+  std::string format = "auto";
+  std::string time_unit = "auto";
+  double depth_scale = 5000.0;
+  double max_time_diff_s = 0.02;
   ExternalDepthScale scale = ExternalDepthScale::kUnknown;
-  double confidence = 1.0;       ///< confidence given to every sampled depth
-  double min_depth = 0.0;        ///< closer readings are ignored (maps' unit)
-  double max_depth = 1.0e6;      ///< farther readings are ignored (maps' unit)
-  double max_depth_step = 0.03;  ///< relative step across 2x2 pixels: a depth edge (refused)
+  double confidence = 1.0;
+  double min_depth = 0.0;
+  double max_depth = 1.0e6;
+  double max_depth_step = 0.03;
 
   template <class V>
   void visit(V& v) {
@@ -154,25 +153,20 @@ struct ExternalDepthOptions {
 
 /// Keyframe creation and depth inference.
 struct DepthOptions {
-  /// auto: rgbd in rgbd mode, else triangulation
   DepthBackend backend = DepthBackend::kAuto;
-  int neighbours = 5;              ///< keyframes depth inference looks at
-  double min_confidence = 0.2;     ///< depth below this confidence makes no map-point
-  int min_scale_samples = 20;      ///< 3D-2D matches needed to align a non-map-scale depth
-  int fuse_keyframes = 10;         ///< keyframes whose map points are projected into a new one
-  double fuse_radius_px = 3.0;     ///< search radius of that projection, level-0 px (x scale)
-  int fuse_max_hamming = 50;       ///< largest descriptor distance of a projected match
-  double fuse_min_view_cos = 0.5;  ///< cosine of the largest angle to a point's mean view ray
-  /// A projected point matching a keypoint that tracks another point merges the two: auto
-  /// (rgbd mode only), on, off.
+  int neighbours = 5;
+  double min_confidence = 0.2;
+  int min_scale_samples = 20;
+  int fuse_keyframes = 10;
+  double fuse_radius_px = 3.0;
+  int fuse_max_hamming = 50;
+  double fuse_min_view_cos = 0.5;
   MergeMode fuse_merge_duplicates = MergeMode::kAuto;
-  /// Align each point's keypoint in a new keyframe to the point's anchor patch (its
-  /// appearance in the first keyframe that observed it, warped by the views' geometry).
   bool align_keypoints = true;
-  double align_max_shift_px = 1.5;    ///< largest move of an aligned keypoint, px of its level
-  int align_keyframe_images = 8;      ///< recent keyframe images kept for aligning new points
-  double align_max_rms = 6.0;         ///< largest RMS intensity residual of an accepted alignment
-  double align_max_anisotropy = 1.3;  ///< largest singular-value ratio of the predicted warp
+  double align_max_shift_px = 1.5;
+  int align_keyframe_images = 8;
+  double align_max_rms = 6.0;
+  double align_max_anisotropy = 1.3;
   TriangulationOptions triangulation;
   RgbdDepthOptions rgbd;
   PlaneSweepDepthOptions plane_sweep;

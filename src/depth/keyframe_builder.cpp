@@ -8,6 +8,7 @@
 #include <Eigen/SVD>
 #include <opencv2/imgproc.hpp>
 
+#include "core/chi2.h"
 #include "core/median.h"
 #include "depth/external_depth.h"
 #include "depth/plane_sweep_depth.h"
@@ -18,8 +19,6 @@
 
 namespace mer::depth {
 namespace {
-
-constexpr double kChi2TwoDof95 = 5.991;  // 2 dof, 95 %: reprojection gate
 
 constexpr std::size_t kMaxObservationsRead = 64;  // observations scanned per tracked point
 constexpr int kPointRefineIterations = 5;         // Gauss-Newton steps of a point refinement

@@ -73,26 +73,24 @@ inline constexpr std::array<std::string_view, 3> kPlaneSweepAggregationNames{"no
 
 /// Options of the plane-sweep stereo (config section `depth.plane_sweep`).
 struct PlaneSweepOptions {
-  int width = 320;       ///< working width, px (inputs are resampled to it)
-  int height = 240;      ///< working height, px
-  int num_planes = 24;   ///< inverse-depth hypotheses (sub-plane refined)
-  int max_sources = 8;   ///< source views compute() accepts (buffers per view)
-  int patch_radius = 2;  ///< cost window is (2r+1)^2 pixels
-  /// photometric cost: zncc or census
+  int width = 320;
+  int height = 240;
+  int num_planes = 24;
+  int max_sources = 8;
+  int patch_radius = 2;
   PlaneSweepCost cost = PlaneSweepCost::kZncc;
-  double zncc_variance_floor = 4.0;  ///< grey levels^2 added to both window variances
-  double census_epsilon = 8.0;       ///< census: neighbours this close to the centre are "equal"
-  int best_k = 3;                    ///< average of the best K of N source costs
-  /// none, sgm4 or sgm8 (semi-global, 4 or 8 paths)
+  double zncc_variance_floor = 4.0;
+  double census_epsilon = 8.0;
+  int best_k = 3;
   PlaneSweepAggregation aggregation = PlaneSweepAggregation::kSgm8;
-  double sgm_p1 = 0.03;                   ///< SGM penalty of a one-plane step, [0, 1] cost units
-  double sgm_p2 = 0.3;                    ///< SGM penalty of a larger jump, [0, 1] cost units
-  bool subsample = true;                  ///< sub-plane refinement (equiangular fit)
-  double uniqueness_full = 0.25;          ///< 1 - best/second giving full uniqueness confidence
-  double uniqueness_radius_px = 1.0;      ///< the second best is at least this far, px
-  int consistent_views = 2;               ///< agreeing sources giving full consistency confidence
-  double consistency_tolerance_px = 1.0;  ///< a source agrees within this distance, px
-  double min_confidence = 0.5;            ///< depth() is 0 below this confidence
+  double sgm_p1 = 0.03;
+  double sgm_p2 = 0.3;
+  bool subsample = true;
+  double uniqueness_full = 0.25;
+  double uniqueness_radius_px = 1.0;
+  int consistent_views = 2;
+  double consistency_tolerance_px = 1.0;
+  double min_confidence = 0.5;
 
   template <class V>
   void visit(V& v) {

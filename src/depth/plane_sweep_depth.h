@@ -15,12 +15,11 @@ namespace mer::depth {
 
 /// Options of the `plane_sweep` backend (config section `depth.plane_sweep`).
 struct PlaneSweepDepthOptions {
-  PlaneSweepOptions stereo;          ///< the stereo itself
-  int sources = 4;                   ///< recent frames swept against (at most stereo.max_sources)
-  double source_spacing_s = 0.1;     ///< time between kept recent frames, s
-  double range_margin = 2.0;         ///< swept range: [hint_min / margin, hint_max * margin]
-  double min_baseline_ratio = 0.02;  ///< a source's baseline must be this fraction of the
-                                     ///< median tracked depth (shorter: too little parallax)
+  PlaneSweepOptions stereo;
+  int sources = 4;
+  double source_spacing_s = 0.1;
+  double range_margin = 2.0;
+  double min_baseline_ratio = 0.02;
 
   template <class V>
   void visit(V& v) {

@@ -26,6 +26,14 @@ class TriangulationDepth final : public DepthInference {
   Status infer(const DepthRequest& req, DepthResult& out) override;
 
  private:
+  /// The keyframe's and its views' geometry for one infer() call (triangulation_depth.cpp).
+  struct Views;
+  /// Epipolar matches (match_) of the request's free keypoints in view `vi`: the closest
+  /// descriptor within the band and the ratio, one-to-one per view.
+  void match_view(const Views& g, std::size_t vi);
+  /// Depth of free keypoint `i` from its matches (out.depth, confidence, support, fates).
+  void triangulate_keypoint(const Views& g, std::size_t i, DepthResult& out) const;
+
   TriangulationOptions opts_;
   std::vector<std::uint32_t> match_;    // [keypoint * views + view]: matched keypoint or none
   std::vector<int> best_dist_;          // per keypoint of one view: distance of its match

@@ -116,15 +116,13 @@ struct KeyframeMove {
   SE3d T_w_c_truth;  // its ground truth in the map frame
 };
 
-}  // namespace
-
-GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBundleAdjuster& ba,
-                                                 const geometry::Pinhole& K,
-                                                 std::span<const StampedPose> groundtruth,
-                                                 std::int64_t max_dt_ns, bool with_scale,
-                                                 int max_iterations, std::uint64_t seed) {
-  GroundTruthCheckReport rep;
-  // 1. The keyframes, their ground truth, and the alignment ground truth -> map.
+/// Step 1: the keyframes, their ground truth, and the alignment ground truth -> map; the
+/// points ride with their reference keyframe (read before it moves), then the keyframes move
+/// to the truth. False (rep.note says why) when the map cannot be aligned.
+bool move_to_truth(map::Map& map, std::span<const StampedPose> groundtruth, std::int64_t max_dt_ns,
+                   bool with_scale, GroundTruthCheckReport& rep,
+                   std::map<map::KeyframeId, KeyframeMove>& moves,
+                   std::vector<map::PointId>& points) {
   std::vector<map::KeyframeId> ids;
   std::vector<SE3d> est;
   std::vector<SE3d> gt;
@@ -135,7 +133,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
     if (g == nullptr) {
       rep.note =
           "keyframe of frame " + std::to_string(map.keyframe_seq(id)) + " has no ground-truth pose";
-      return rep;
+      return false;
     }
     ids.push_back(id);
     est.push_back(T);
@@ -144,7 +142,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
   rep.keyframes = static_cast<int>(ids.size());
   if (ids.size() < 3) {
     rep.note = "fewer than 3 keyframes";
-    return rep;
+    return false;
   }
   Eigen::Matrix3Xd src(3, ids.size());
   Eigen::Matrix3Xd dst(3, ids.size());
@@ -155,18 +153,17 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
   const Eigen::Vector3d centre = src.rowwise().mean();
   if ((src.colwise() - centre).squaredNorm() < kMinCentreSpread2) {
     rep.note = "the ground-truth keyframe centres do not move";
-    return rep;
+    return false;
   }
   const Eigen::Matrix4d S_map_gt = Eigen::umeyama(src, dst, with_scale);
   const double scale = S_map_gt.block<3, 1>(0, 0).norm();
   if (!S_map_gt.allFinite() || !(scale > 0.0)) {
     rep.note = "no alignment maps the ground truth onto the map";
-    return rep;
+    return false;
   }
   rep.scale = scale;
   const Eigen::Matrix3d R_map_gt = S_map_gt.block<3, 3>(0, 0) / scale;
   const Eigen::Vector3d t_map_gt = S_map_gt.block<3, 1>(0, 3);
-  std::map<map::KeyframeId, KeyframeMove> moves;
   for (std::size_t i = 0; i < ids.size(); ++i) {
     SE3d T_w_c_truth = SE3d::Identity();
     T_w_c_truth.linear() = R_map_gt * gt[i].linear();
@@ -174,8 +171,6 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
     moves[ids[i]] = {est[i], T_w_c_truth};
   }
 
-  // Points ride with their reference keyframe (read before it moves); then the keyframes move.
-  std::vector<map::PointId> points;
   for (map::PointId p = 0; p < map.num_points(); ++p) {
     map::PointView v;
     if (map.point_is_bad(p) || !map.read_point(p, v)) continue;
@@ -186,8 +181,14 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
     points.push_back(p);
   }
   for (const auto& [id, mv] : moves) map.set_keyframe_pose(id, mv.T_w_c_truth);
+  return true;
+}
 
-  // 2. Re-fit each point at the truth; its observations' errors.
+/// Step 2: each point re-fitted at the truth, and its observations' errors against their
+/// ground-truth projections (rep's error statistics). Returns the checked observations.
+std::vector<CheckedObservation> check_observations(map::Map& map, const geometry::Pinhole& K,
+                                                   std::span<const map::PointId> points,
+                                                   GroundTruthCheckReport& rep) {
   std::vector<std::pair<map::KeyframeId, std::uint32_t>> obs(
       static_cast<std::size_t>(std::max(1, map.options().max_observations_per_point)));
   std::vector<CheckedObservation> checked;
@@ -245,10 +246,7 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
     }
   }
   rep.observations = static_cast<int>(checked.size());
-  if (checked.empty()) {
-    rep.note = "no point with two observations and enough parallax";
-    return rep;
-  }
+  if (checked.empty()) return checked;
   rep.beyond_1_level_px = static_cast<double>(beyond_1) / static_cast<double>(checked.size());
   rep.beyond_2_level_px = static_cast<double>(beyond_2) / static_cast<double>(checked.size());
   auto rms = [](double s2, int n) { return n > 0 ? std::sqrt(s2 / (2.0 * n)) : 0.0; };
@@ -261,6 +259,28 @@ GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBu
     e.observations = count[level];
     e.rms_level_px = rms(sum2[level], in_rms[level]);
     rep.levels.push_back(e);
+  }
+  return checked;
+}
+
+}  // namespace
+
+GroundTruthCheckReport check_against_groundtruth(map::Map& map, backend::LocalBundleAdjuster& ba,
+                                                 const geometry::Pinhole& K,
+                                                 std::span<const StampedPose> groundtruth,
+                                                 std::int64_t max_dt_ns, bool with_scale,
+                                                 int max_iterations, std::uint64_t seed) {
+  GroundTruthCheckReport rep;
+  // 1. The map moved to the truth.
+  std::map<map::KeyframeId, KeyframeMove> moves;
+  std::vector<map::PointId> points;
+  if (!move_to_truth(map, groundtruth, max_dt_ns, with_scale, rep, moves, points)) return rep;
+
+  // 2. Re-fit each point at the truth; its observations' errors.
+  const std::vector<CheckedObservation> checked = check_observations(map, K, points, rep);
+  if (checked.empty()) {
+    rep.note = "no point with two observations and enough parallax";
+    return rep;
   }
   // Where step 3 starts, for step 4 to start there too.
   std::vector<std::pair<map::PointId, Eigen::Vector3d>> start;

@@ -36,18 +36,16 @@ inline constexpr std::array<std::string_view, 2> kExtractorBackendNames = {"orb"
 
 /// Options of the feature extractor (config section `tracking.extractor`).
 struct ExtractorOptions {
-  /// "orb": allocation-free ORB of this project; "opencv_orb": cv::ORB (allocates; for
-  /// comparison)
   ExtractorBackend backend = ExtractorBackend::kOrb;
-  int num_features = 1000;     ///< features per frame, over all levels
-  double scale_factor = 1.2;   ///< pyramid scale between levels
-  int num_levels = 8;          ///< pyramid levels
-  int fast_threshold = 20;     ///< FAST threshold
-  int min_fast_threshold = 7;  ///< retry threshold in cells where nothing is found
-  int grid_cols = 8;           ///< bucketing grid columns at level 0 (scaled per level)
-  int grid_rows = 6;           ///< bucketing grid rows at level 0 (scaled per level)
-  int edge_threshold = 19;     ///< border without features, px (must fit the 31x31 patch)
-  bool subpixel = false;       ///< orb: sub-pixel keypoints from the FAST scores around them
+  int num_features = 1000;
+  double scale_factor = 1.2;
+  int num_levels = 8;
+  int fast_threshold = 20;
+  int min_fast_threshold = 7;
+  int grid_cols = 8;
+  int grid_rows = 6;
+  int edge_threshold = 19;
+  bool subpixel = false;
 
   template <class V>
   void visit(V& v) {

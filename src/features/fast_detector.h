@@ -22,11 +22,11 @@ namespace mer::features {
 
 /// Options of the corner detector (config section `tracking.fast`).
 struct FastOptions {
-  int threshold = 20;          ///< intensity difference to the centre, grey levels
-  int max_corners = 1000;      ///< corners kept after bucketing
-  int grid_cols = 8;           ///< bucketing grid columns (spread corners over the image)
-  int grid_rows = 6;           ///< bucketing grid rows
-  int max_candidates = 20000;  ///< corners kept before bucketing (buffer size)
+  int threshold = 20;
+  int max_corners = 1000;
+  int grid_cols = 8;
+  int grid_rows = 6;
+  int max_candidates = 20000;
 
   template <class V>
   void visit(V& v) {

@@ -99,24 +99,33 @@ int round_to_int(double v) {
   return static_cast<int>(std::lround(v));
 }
 
+// Bilinear resize map of one axis (pixel centres aligned): source coordinate
+// (i + 0.5) * ratio - 0.5, as the source index and the weight of the next source pixel.
+void fill_resize_map(int dst_n, int src_n, std::int32_t* index, std::int32_t* weight) {
+  const double ratio = static_cast<double>(src_n) / dst_n;
+  for (int i = 0; i < dst_n; ++i) {
+    double f = std::max(0.0, (i + 0.5) * ratio - 0.5);
+    int idx = static_cast<int>(f);
+    int w = round_to_int((f - idx) * kResizeOne);
+    if (w == kResizeOne) {
+      ++idx;
+      w = 0;
+    }
+    if (idx >= src_n - 1) {  // last column: all weight on the last pixel
+      idx = src_n - 2;
+      w = kResizeOne;
+    }
+    index[i] = idx;  // blend of source idx (weight kResizeOne - w) and idx + 1 (w)
+    weight[i] = w;
+  }
+}
+
 }  // namespace
 
-OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
-    : opts_(opts), width_(width), height_(height) {
-  MER_ASSERT(validate_extractor_options(opts, width, height).is_ok(),
-             "OrbExtractor: invalid options (call validate_extractor_options first)");
-  const int num_levels = opts.num_levels;
-  const int e = opts.edge_threshold;
-  stride_ = (width + kRowAlign - 1) / kRowAlign * kRowAlign;
-  levels_.resize(static_cast<std::size_t>(num_levels));
-
-  // Geometric share of features per level (ORB-SLAM): n_l proportional to 1/s^l.
-  const double inv_s = 1.0 / opts.scale_factor;
-  double per_level = opts.num_features * (1.0 - inv_s) / (1.0 - std::pow(inv_s, num_levels));
-  int assigned = 0;
-
-  std::size_t raw_rows = 0;
-  std::size_t blur_rows = 0;
+/// The totals plan_levels() sizes the buffers with.
+struct OrbExtractor::BufferSizes {
+  std::size_t raw_rows = 0;   // rows of the resized levels (level 0 is the input)
+  std::size_t blur_rows = 0;  // rows of every blurred level
   std::size_t cells = 0;
   std::size_t cand = 0;
   std::size_t xmap = 0;
@@ -124,18 +133,63 @@ OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
   std::size_t col_tab = 0;
   std::size_t row_tab = 0;
   std::size_t max_cand_per_level = 1;
+};
+
+OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
+    : opts_(opts), width_(width), height_(height) {
+  MER_ASSERT(validate_extractor_options(opts, width, height).is_ok(),
+             "OrbExtractor: invalid options (call validate_extractor_options first)");
+  stride_ = (width + kRowAlign - 1) / kRowAlign * kRowAlign;
+  const BufferSizes n = plan_levels();
+
+  raw_.assign(n.raw_rows * static_cast<std::size_t>(stride_), 0);
+  blurred_.assign(n.blur_rows * static_cast<std::size_t>(stride_), 0);
+  tmp16_.assign(static_cast<std::size_t>(stride_ + 2 * kBlurRadius), 0);
+  score_rows_.assign(static_cast<std::size_t>(kScoreRows) * static_cast<std::size_t>(stride_), 0);
+  xs_rows_.assign(static_cast<std::size_t>(kScoreRows) * static_cast<std::size_t>(stride_), 0);
+  candidates_.resize(n.cand);
+  sorted_.resize(n.max_cand_per_level);
+  cell_count_.assign(n.cells, 0);
+  cell_start_.assign(n.cells, 0);
+  cell_rect_.assign(n.cells * 4, 0);
+  cell_col_of_x_.assign(n.col_tab, 0);
+  cell_row_of_y_.assign(n.row_tab, 0);
+  pool_.resize(n.max_cand_per_level);
+  selected_.resize(static_cast<std::size_t>(opts.num_features));
+  xmap_.assign(n.xmap, 0);
+  ymap_.assign(n.ymap, 0);
+  xweight_.assign(n.xmap, 0);
+  yweight_.assign(n.ymap, 0);
+
+  fill_level_tables();
+  make_disc();
+  make_pattern();
+  keypoints_.resize(static_cast<std::size_t>(opts.num_features));
+  descriptors_.resize(static_cast<std::size_t>(opts.num_features));
+}
+
+OrbExtractor::BufferSizes OrbExtractor::plan_levels() {
+  const ExtractorOptions& opts = opts_;
+  const int num_levels = opts.num_levels;
+  const int e = opts.edge_threshold;
+  levels_.resize(static_cast<std::size_t>(num_levels));
+  // Geometric share of features per level (ORB-SLAM): n_l proportional to 1/s^l.
+  const double inv_s = 1.0 / opts.scale_factor;
+  double per_level = opts.num_features * (1.0 - inv_s) / (1.0 - std::pow(inv_s, num_levels));
+  int assigned = 0;
+  BufferSizes n;
   for (int l = 0; l < num_levels; ++l) {
     Level& lv = levels_[static_cast<std::size_t>(l)];
     const double scale = std::pow(opts.scale_factor, l);
     lv.scale = static_cast<float>(scale);
-    lv.width = l == 0 ? width : std::max(1, round_to_int(width / scale));
-    lv.height = l == 0 ? height : std::max(1, round_to_int(height / scale));
-    lv.to_x0 = static_cast<float>(width) / static_cast<float>(lv.width);
-    lv.to_y0 = static_cast<float>(height) / static_cast<float>(lv.height);
-    lv.raw = l == 0 ? 0 : raw_rows * static_cast<std::size_t>(stride_);
-    if (l > 0) raw_rows += static_cast<std::size_t>(lv.height);
-    lv.blur = blur_rows * static_cast<std::size_t>(stride_);
-    blur_rows += static_cast<std::size_t>(lv.height);
+    lv.width = l == 0 ? width_ : std::max(1, round_to_int(width_ / scale));
+    lv.height = l == 0 ? height_ : std::max(1, round_to_int(height_ / scale));
+    lv.to_x0 = static_cast<float>(width_) / static_cast<float>(lv.width);
+    lv.to_y0 = static_cast<float>(height_) / static_cast<float>(lv.height);
+    lv.raw = l == 0 ? 0 : n.raw_rows * static_cast<std::size_t>(stride_);
+    if (l > 0) n.raw_rows += static_cast<std::size_t>(lv.height);
+    lv.blur = n.blur_rows * static_cast<std::size_t>(stride_);
+    n.blur_rows += static_cast<std::size_t>(lv.height);
     lv.x0 = e;
     lv.y0 = e;
     lv.x1 = lv.width - e;
@@ -144,13 +198,13 @@ OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
     const int rh = lv.y1 - lv.y0;
     lv.grid_cols = std::clamp(round_to_int(opts.grid_cols / scale), 1, rw);
     lv.grid_rows = std::clamp(round_to_int(opts.grid_rows / scale), 1, rh);
-    lv.cell_begin = cells;
-    lv.col_of_x = col_tab;
-    lv.row_of_y = row_tab;
-    col_tab += static_cast<std::size_t>(rw);
-    row_tab += static_cast<std::size_t>(rh);
+    lv.cell_begin = n.cells;
+    lv.col_of_x = n.col_tab;
+    lv.row_of_y = n.row_tab;
+    n.col_tab += static_cast<std::size_t>(rw);
+    n.row_tab += static_cast<std::size_t>(rh);
     const auto level_cells = static_cast<std::size_t>(lv.grid_cols * lv.grid_rows);
-    cells += level_cells;
+    n.cells += level_cells;
     // Corners surviving 3x3 suppression in a w x h rectangle: at most ceil(w/2) ceil(h/2)
     // (no two are neighbours). Bounding every cell so bounds retries in empty cells too.
     std::size_t level_cand = 0;
@@ -162,43 +216,27 @@ OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
             static_cast<std::size_t>((cw + 1) / 2) * static_cast<std::size_t>((ch + 1) / 2);
       }
     }
-    lv.cand_begin = cand;
+    lv.cand_begin = n.cand;
     lv.cand_capacity = level_cand;
-    cand += level_cand;
-    max_cand_per_level = std::max(max_cand_per_level, level_cand);
-    lv.xmap = xmap;
-    lv.ymap = ymap;
+    n.cand += level_cand;
+    n.max_cand_per_level = std::max(n.max_cand_per_level, level_cand);
+    lv.xmap = n.xmap;
+    lv.ymap = n.ymap;
     if (l > 0) {
-      xmap += static_cast<std::size_t>(lv.width);
-      ymap += static_cast<std::size_t>(lv.height);
+      n.xmap += static_cast<std::size_t>(lv.width);
+      n.ymap += static_cast<std::size_t>(lv.height);
     }
     lv.desired = l + 1 < num_levels ? round_to_int(per_level) : opts.num_features - assigned;
     lv.desired = std::clamp(lv.desired, 0, opts.num_features - assigned);
     assigned += lv.desired;
     per_level *= inv_s;
   }
+  return n;
+}
 
-  raw_.assign(raw_rows * static_cast<std::size_t>(stride_), 0);
-  blurred_.assign(blur_rows * static_cast<std::size_t>(stride_), 0);
-  tmp16_.assign(static_cast<std::size_t>(stride_ + 2 * kBlurRadius), 0);
-  score_rows_.assign(static_cast<std::size_t>(kScoreRows) * static_cast<std::size_t>(stride_), 0);
-  xs_rows_.assign(static_cast<std::size_t>(kScoreRows) * static_cast<std::size_t>(stride_), 0);
-  candidates_.resize(cand);
-  sorted_.resize(max_cand_per_level);
-  cell_count_.assign(cells, 0);
-  cell_start_.assign(cells, 0);
-  cell_rect_.assign(cells * 4, 0);
-  cell_col_of_x_.assign(col_tab, 0);
-  cell_row_of_y_.assign(row_tab, 0);
-  pool_.resize(max_cand_per_level);
-  selected_.resize(static_cast<std::size_t>(opts.num_features));
-  xmap_.assign(xmap, 0);
-  ymap_.assign(ymap, 0);
-  xweight_.assign(xmap, 0);
-  yweight_.assign(ymap, 0);
-
-  for (int l = 0; l < num_levels; ++l) {
-    const Level& lv = levels_[static_cast<std::size_t>(l)];
+void OrbExtractor::fill_level_tables() {
+  for (std::size_t l = 0; l < levels_.size(); ++l) {
+    const Level& lv = levels_[l];
     const int rw = lv.x1 - lv.x0;
     const int rh = lv.y1 - lv.y0;
     // Cell c covers region columns [ceil(c rw / cols), ceil((c+1) rw / cols)).
@@ -218,30 +256,13 @@ OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
       }
     }
     if (l == 0) continue;
-    // Bilinear maps (pixel centres aligned): source coordinate (x + 0.5) * ratio - 0.5.
-    const Level& src = levels_[static_cast<std::size_t>(l - 1)];
-    auto fill_map = [](int dst_n, int src_n, std::int32_t* index, std::int32_t* weight) {
-      const double ratio = static_cast<double>(src_n) / dst_n;
-      for (int i = 0; i < dst_n; ++i) {
-        double f = std::max(0.0, (i + 0.5) * ratio - 0.5);
-        int idx = static_cast<int>(f);
-        int w = round_to_int((f - idx) * kResizeOne);
-        if (w == kResizeOne) {
-          ++idx;
-          w = 0;
-        }
-        if (idx >= src_n - 1) {  // last column: all weight on the last pixel
-          idx = src_n - 2;
-          w = kResizeOne;
-        }
-        index[i] = idx;  // blend of source idx (weight kResizeOne - w) and idx + 1 (w)
-        weight[i] = w;
-      }
-    };
-    fill_map(lv.width, src.width, xmap_.data() + lv.xmap, xweight_.data() + lv.xmap);
-    fill_map(lv.height, src.height, ymap_.data() + lv.ymap, yweight_.data() + lv.ymap);
+    const Level& src = levels_[l - 1];
+    fill_resize_map(lv.width, src.width, xmap_.data() + lv.xmap, xweight_.data() + lv.xmap);
+    fill_resize_map(lv.height, src.height, ymap_.data() + lv.ymap, yweight_.data() + lv.ymap);
   }
+}
 
+void OrbExtractor::make_disc() {
   // Orientation disc: integer points with u^2 + v^2 <= r^2, as weight rows over
   // u = -r .. kDiscRowWidth - r - 1.
   for (int v = 0; v <= kPatchRadius; ++v) {
@@ -253,10 +274,6 @@ OrbExtractor::OrbExtractor(const ExtractorOptions& opts, int width, int height)
           static_cast<std::int16_t>(inside ? u : 0);
     }
   }
-
-  make_pattern();
-  keypoints_.resize(static_cast<std::size_t>(opts.num_features));
-  descriptors_.resize(static_cast<std::size_t>(opts.num_features));
 }
 
 void OrbExtractor::make_pattern() {

@@ -123,6 +123,15 @@ class OrbExtractor final : public Extractor {
   // Smooths rows [y_begin, y_end) of a width x height level into dst (pitch stride_).
   void blur_level(const std::uint8_t* src, std::ptrdiff_t src_stride, int width, int height,
                   int y_begin, int y_end, std::uint8_t* dst);
+  /// Buffer totals of the pyramid (orb_extractor.cpp).
+  struct BufferSizes;
+  /// Lays out the pyramid's levels (levels_: sizes, regions, grids, buffer offsets, feature
+  /// shares) and returns the totals the buffers are sized with.
+  BufferSizes plan_levels();
+  /// Fills the per-level cell tables and the bilinear resize maps (buffers sized).
+  void fill_level_tables();
+  /// Fills the orientation disc's rows (disc_mask_, disc_u_).
+  void make_disc();
   void make_pattern();
 
   ExtractorOptions opts_;

@@ -51,6 +51,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "core/pose.h"
@@ -169,9 +170,29 @@ class Initializer {
   bool reference_too_old(std::int64_t t_ns) const;
   /// Keeps the frame's matches in the window if its turn has come (every win_stride_ frames).
   void remember_frame(const hal::Frame& frame, const KeypointGrid& features);
+  /// Motion candidates checked on the window, at most.
+  static constexpr std::size_t kMaxWindowCandidates = 8;
+  /// The window's choice among the motion candidates.
+  struct WindowVote {
+    std::size_t best = 0;  ///< the candidate with the least truncated cost
+    int slot = 0;          ///< ba_ slot holding its solution
+    /// Smallest margin of the best over another distinct candidate: mean per-point cost
+    /// difference over its standard error (infinite with one candidate).
+    double evidence = std::numeric_limits<double>::infinity();
+  };
   /// Decides a refused pair on the window; returns true when the frame starts the map.
   bool decide_on_window(const hal::Frame& frame, std::span<const SE3d> candidates,
                         const geometry::Pinhole& K, InitDecision& d);
+  /// Selects the window adjustment's points (win_sel_): matches tracked through every view of
+  /// the window that lie on an epipolar line of a candidate, spread evenly; returns how many.
+  std::size_t select_window_points(std::span<const SE3d> candidates, const geometry::Pinhole& K);
+  /// Solves the window with each candidate held fixed and picks the one of least truncated
+  /// cost, with the evidence it beats the others by.
+  WindowVote vote_on_window(const hal::Frame& frame, std::span<const SE3d> candidates,
+                            const geometry::Pinhole& K);
+  /// Triangulates every match from all the window's views (win_T_, the current frame at `T`)
+  /// into win_points_c0_ / win_good_; returns the good points and their median parallax.
+  int triangulate_window(const SE3d& T, const geometry::Pinhole& K, double& median_parallax);
   /// Solves the window with the current frame held at candidate `T_cur_ref`, in ba_[slot].
   void solve_candidate(const hal::Frame& frame, const SE3d& T_cur_ref, const geometry::Pinhole& K,
                        int slot);

@@ -32,18 +32,17 @@ namespace mer::frontend {
 
 /// Options of the keyframe decision (config section `tracking.keyframe`).
 struct KeyframePolicyOptions {
-  int min_inliers = 100;  ///< fewer tracked inliers -> keyframe
-  double min_inlier_ratio =
-      0.6;                     ///< inliers below this fraction of the last keyframe's -> keyframe
-  double min_spread = 0.45;    ///< occupied-grid ratio of the inliers below this -> keyframe
-  int spread_grid_cols = 8;    ///< spread grid columns
-  int spread_grid_rows = 6;    ///< spread grid rows
-  double min_spacing_s = 0.1;  ///< time after a keyframe before count/spread/KL may fire, s
-  double max_spacing_s = 1.5;  ///< a keyframe at least this often while tracking (mono), s
-  double kl_threshold = 0.8;   ///< KL divergence jump (nats) that fires a keyframe
-  double kl_epsilon = 1e-3;    ///< probability floor of an empty histogram bin
-  double min_baseline_ratio = 0.03;  ///< below this baseline / median depth only the count fires
-  double rgbd_max_spacing_s = 0.8;   ///< RGB-D: max_spacing_s (sensor depth: keyframes are cheap)
+  int min_inliers = 100;
+  double min_inlier_ratio = 0.6;
+  double min_spread = 0.45;
+  int spread_grid_cols = 8;
+  int spread_grid_rows = 6;
+  double min_spacing_s = 0.1;
+  double max_spacing_s = 1.5;
+  double kl_threshold = 0.8;
+  double kl_epsilon = 1e-3;
+  double min_baseline_ratio = 0.03;
+  double rgbd_max_spacing_s = 0.8;
 
   /// The options in effect for a sensor mode: RGB-D takes rgbd_max_spacing_s and no
   /// parallax gate (its depth does not come from the poses).

@@ -5,6 +5,7 @@
 #include <limits>
 #include <mutex>
 
+#include "core/chi2.h"
 #include "core/median.h"
 #include "geometry/depth_sampling.h"
 #include "platform/clock.h"
@@ -15,7 +16,6 @@ namespace {
 
 constexpr std::uint64_t kFnvOffset = 1469598103934665603ULL;
 constexpr std::uint64_t kFnvPrime = 1099511628211ULL;
-constexpr double kChi2TwoDof95 = 5.991;  // inlier gate of a 2D reprojection error, sigma^2
 constexpr int kNoMatch = -1;
 constexpr int kMaxRecentKeyframes = 64;    // distinct keyframes Q_T may draw from
 constexpr double kReferenceWidth = 640.0;  // extractor.num_features is meant for this size

@@ -13,15 +13,15 @@ namespace mer::frontend {
 
 /// Projection-guided matching of map-points against the frame's keypoints.
 struct MatchOptions {
-  int max_hamming = 80;           ///< largest descriptor distance of a match
-  double ratio = 0.85;            ///< best / second-best distance ratio
-  double radius_px = 10.0;        ///< search radius around the predicted projection, level-0 px
-  double wide_radius_px = 40.0;   ///< radius when the prediction is poor (after a failure)
-  double refine_radius_px = 4.0;  ///< radius of the second search with the estimated pose
-  int min_matches = 40;           ///< fewer matches -> retry with the wide radius
-  int grid_cell_px = 16;          ///< keypoint grid cell size for radius search, px
-  double min_view_cos = 0.4;      ///< cosine of the largest angle to a point's mean view direction
-  int level_window = 1;           ///< pyramid levels around the predicted one that are searched
+  int max_hamming = 80;
+  double ratio = 0.85;
+  double radius_px = 10.0;
+  double wide_radius_px = 40.0;
+  double refine_radius_px = 4.0;
+  int min_matches = 40;
+  int grid_cell_px = 16;
+  double min_view_cos = 0.4;
+  int level_window = 1;
 
   template <class V>
   void visit(V& v) {
@@ -53,15 +53,15 @@ struct MatchOptions {
 /// as uncertain, the frames tracked in between decide it (a bundle adjustment of the window,
 /// geometry/window_ba.h).
 struct InitWindowOptions {
-  bool enabled = true;                   ///< decide refused pairs on the window
-  bool decide_ties = false;              ///< also decide ambiguous pairs (ties) on the window
-  int max_views = 8;                     ///< frames kept between the reference and the current one
-  int min_views = 2;                     ///< frames in between needed to decide
-  int max_points = 300;                  ///< points in the candidates' bundle adjustments
-  int iterations = 20;                   ///< Levenberg-Marquardt iterations per solve
-  double min_evidence_sigmas = 4.0;      ///< how much better the winner must explain the window
-  double max_moved_rotation_deg = 0.5;   ///< released, the winner's rotation may move this far
-  double max_moved_direction_deg = 5.0;  ///< and its translation direction this far
+  bool enabled = true;
+  bool decide_ties = false;
+  int max_views = 8;
+  int min_views = 2;
+  int max_points = 300;
+  int iterations = 20;
+  double min_evidence_sigmas = 4.0;
+  double max_moved_rotation_deg = 0.5;
+  double max_moved_direction_deg = 5.0;
 
   template <class V>
   void visit(V& v) {
@@ -101,23 +101,20 @@ struct InitWindowOptions {
 
 /// Monocular / RGB-D initialization.
 struct InitOptions {
-  geometry::TwoViewOptions two_view;  ///< two-view reconstruction and its refusals
-  InitWindowOptions window;           ///< the window of frames that decides refused pairs
-  double search_radius_px =
-      100.0;               ///< window of the frame-to-frame search of the reference keypoints
-  int max_hamming = 60;    ///< descriptor distance of an initialization match
-  double ratio = 0.9;      ///< best / second-best ratio of an initialization match
-  int min_features = 150;  ///< a reference frame needs this many keypoints
-  double max_reference_age_s = 1.4;  ///< time a reference is kept while init is refused, s
-  double rotation_renew_fraction =
-      0.5;  ///< a pure rotation keeping fewer of the reference's matches renews it (0: off)
-  double failed_start_window_s = 1.0;  ///< a start lost within this time is a failed start, s
-  int failed_start_max_keyframes = 5;  ///< ... if its segment has at most this many keyframes
-  bool discard_failed_starts = true;   ///< a failed start's segment is discarded, not kept
-  bool plane_hints = false;            ///< break planar ties with an earlier frame's plane normals
-  double max_plane_hint_reference_age_s =
-      3.0;                    ///< time a reference is kept while it holds plane hints, s
-  int rgbd_min_points = 100;  ///< RGB-D: keypoints with valid depth needed to start
+  geometry::TwoViewOptions two_view;
+  InitWindowOptions window;
+  double search_radius_px = 100.0;
+  int max_hamming = 60;
+  double ratio = 0.9;
+  int min_features = 150;
+  double max_reference_age_s = 1.4;
+  double rotation_renew_fraction = 0.5;
+  double failed_start_window_s = 1.0;
+  int failed_start_max_keyframes = 5;
+  bool discard_failed_starts = true;
+  bool plane_hints = false;
+  double max_plane_hint_reference_age_s = 3.0;
+  int rgbd_min_points = 100;
 
   template <class V>
   void visit(V& v) {
@@ -173,12 +170,12 @@ struct InitOptions {
 
 /// Focal-length estimation (`pipeline.focal: auto`).
 struct FocalOptions {
-  int min_init_estimates = 5;      ///< two-view focal estimates needed before initializing
-  double min_disparity_px = 20.0;  ///< median disparity a pair needs to give an estimate
-  int stable_frames = 15;          ///< estimates within tolerance of the median that fix it
-  double stable_tolerance = 0.01;  ///< relative tolerance of "stable"
-  int max_frames = 150;            ///< the focal is fixed at the latest after this many frames
-  bool refine_after_init = false;  ///< keep estimating jointly with PnP after initialization
+  int min_init_estimates = 5;
+  double min_disparity_px = 20.0;
+  int stable_frames = 15;
+  double stable_tolerance = 0.01;
+  int max_frames = 150;
+  bool refine_after_init = false;
 
   template <class V>
   void visit(V& v) {
@@ -226,15 +223,15 @@ struct FocalOptions {
 /// count is forgotten when a frame is tracked. Frames of a candidate are reported lost and
 /// write nothing to the map; a refused offer or candidate is counted by reason.
 struct RelocalizationCheckOptions {
-  bool enabled = true;                   ///< check relocalizations (off: trust every pose found)
-  double short_loss_s = 0.5;             ///< a loss up to this long is bounded by motion, s
-  double max_accel_depths_per_s2 = 4.0;  ///< largest acceleration assumed, median depths / s^2
-  double max_angular_accel_deg_per_s2 = 360.0;  ///< largest angular acceleration, deg / s^2
-  double margin_depths = 0.1;                   ///< translation bound margin, median depths
-  double margin_deg = 10.0;                     ///< rotation bound margin, deg
-  int confirm_frames = 3;                       ///< frames a candidate must be tracked in, in a row
-  double min_found_fraction = 0.4;  ///< confirming frame's found share / recent median, at least
-  int max_confirm_frames = 30;      ///< most frames a candidate at a refused place must pass
+  bool enabled = true;
+  double short_loss_s = 0.5;
+  double max_accel_depths_per_s2 = 4.0;
+  double max_angular_accel_deg_per_s2 = 360.0;
+  double margin_depths = 0.1;
+  double margin_deg = 10.0;
+  int confirm_frames = 3;
+  double min_found_fraction = 0.4;
+  int max_confirm_frames = 30;
 
   template <class V>
   void visit(V& v) {
@@ -280,29 +277,25 @@ struct RelocalizationCheckOptions {
 
 /// Options of the tracking stage.
 struct TrackingOptions {
-  features::ExtractorOptions extractor;  ///< keypoints and descriptors
-  MatchOptions match;                    ///< map-point to keypoint matching
-  geometry::PnpOptions pnp;              ///< absolute pose
-  KeyframePolicyOptions keyframe;        ///< keyframe decision
-  InitOptions init;                      ///< initialization
-  FocalOptions focal;                    ///< focal-length estimation
-  bool scale_features_with_area = true;  ///< extractor.num_features is for 640x480; scale it
-                                         ///< with larger images (capped by the map's capacity)
-  int temporal_frames = 5;               ///< B: the keyframes tracked in the last B frames give Q_T
-  int max_query_points = 12000;          ///< map-points considered per frame (Q_T and Q_S together)
-  double query_far = 4.0;          ///< Q_S depth range: this many times the median tracked depth
-  double spatial_max_age_s = 0.0;  ///< Q_S skips points whose reference keyframe is older, s
-                                   ///< (0: no limit)
-  int min_inliers = 25;            ///< fewer PnP inliers: the frame is lost
-  int relocalize_after_lost_frames = 2;  ///< lost frames searched from the last pose only,
-                                         ///< before relocalization is asked for as well
-  bool new_segments = true;              ///< start a new map segment after a long lost spell
-  double new_segment_after_s = 0.5;      ///< lost this long (no relocalization): new segment, s
-  int max_segments = 64;                 ///< map segments a run may start (the first included)
-  RelocalizationCheckOptions relocalization_check;  ///< when a relocalizer's pose is trusted
-  int busy_work_us = 0;  ///< extra busy-wait per frame, us (load tests of the drop policy)
-  double rgbd_max_depth_step = 0.03;  ///< sensor depth at a keypoint: relative step across its
-                                      ///< 2x2 pixels above which it is a depth edge (refused)
+  features::ExtractorOptions extractor;
+  MatchOptions match;
+  geometry::PnpOptions pnp;
+  KeyframePolicyOptions keyframe;
+  InitOptions init;
+  FocalOptions focal;
+  bool scale_features_with_area = true;
+  int temporal_frames = 5;
+  int max_query_points = 12000;
+  double query_far = 4.0;
+  double spatial_max_age_s = 0.0;
+  int min_inliers = 25;
+  int relocalize_after_lost_frames = 2;
+  bool new_segments = true;
+  double new_segment_after_s = 0.5;
+  int max_segments = 64;
+  RelocalizationCheckOptions relocalization_check;
+  int busy_work_us = 0;
+  double rgbd_max_depth_step = 0.03;
 
   template <class V>
   void visit(V& v) {

@@ -182,6 +182,104 @@ struct DepthProblem {
   }
 };
 
+/// The conic pencil of the depth problem and its degenerate member. L^T M_ij L = a_ij with
+/// M12 = [1 -b12 0; -b12 1 0; 0 0 0] etc.; D1 = a23 M12 - a12 M23 and D2 = a23 M13 - a13 M23
+/// are homogeneous: L^T D1 L = L^T D2 L = 0. D0 is the pencil's best-conditioned line pair
+/// (a real root of det(u D1 + v D2) = 0), D3 the member least like D0. False: no line pair.
+bool degenerate_member(const DepthProblem& dp, Eigen::Matrix3d& D0, Eigen::Matrix3d& D3) {
+  Eigen::Matrix3d D1;
+  D1 << dp.a23, -dp.a23 * dp.b12, 0.0,                     //
+      -dp.a23 * dp.b12, dp.a23 - dp.a12, dp.a12 * dp.b23,  //
+      0.0, dp.a12 * dp.b23, -dp.a12;
+  Eigen::Matrix3d D2;
+  D2 << dp.a23, 0.0, -dp.a23 * dp.b13,  //
+      0.0, -dp.a13, dp.a13 * dp.b23,    //
+      -dp.a23 * dp.b13, dp.a13 * dp.b23, dp.a23 - dp.a13;
+  // det(u D1 + v D2) = u^3 det D1 + u^2 v tr(adj(D1) D2) + u v^2 tr(adj(D2) D1) + v^3 det D2.
+  const double k0 = D1.determinant();
+  const double k1 = (adjugate(D1).cwiseProduct(D2)).sum();
+  const double k2 = (adjugate(D2).cwiseProduct(D1)).sum();
+  const double k3 = D2.determinant();
+  // Solve in the orientation with the larger leading coefficient (roots stay bounded).
+  const bool in_gamma = std::abs(k3) >= std::abs(k0);  // D0 = D1 + g D2, else D0 = g D1 + D2
+  std::array<double, 3> roots{};
+  const int num_roots =
+      in_gamma ? solve_cubic(k3, k2, k1, k0, roots) : solve_cubic(k0, k1, k2, k3, roots);
+  // Of the real roots, take the one whose line pair is best conditioned.
+  double best_pairness = -kMinLinePairness;
+  double best_root = 0.0;
+  bool found = false;
+  for (int k = 0; k < num_roots; ++k) {
+    const Eigen::Matrix3d D =
+        in_gamma ? Eigen::Matrix3d(D1 + roots[k] * D2) : Eigen::Matrix3d(roots[k] * D1 + D2);
+    const double norm2 = D.squaredNorm();
+    if (!(norm2 > 0.0)) continue;
+    const double pairness = principal_minor_sum(D) / norm2;
+    if (pairness < best_pairness) {
+      best_pairness = pairness;
+      best_root = roots[k];
+      D0 = D;
+      found = true;
+    }
+  }
+  if (!found) return false;
+  const bool d0_mostly_d1 = in_gamma ? std::abs(best_root) <= 1.0 : std::abs(best_root) >= 1.0;
+  D3 = d0_mostly_d1 ? D2 : D1;
+  return true;
+}
+
+/// Splits the line pair D0 = s+ e+ e+^T + s- e- e-^T (normalized in place): its lines are
+/// n . L = 0 with n = e+ -+ slope e-. False: degenerate.
+bool split_line_pair(Eigen::Matrix3d& D0, Eigen::Vector3d& e_pos, Eigen::Vector3d& e_neg,
+                     double& slope) {
+  D0 /= std::sqrt(D0.squaredNorm());
+  const double tr = D0.trace();
+  const double m = principal_minor_sum(D0);  // s+ * s- < 0
+  const double root_disc = std::sqrt(tr * tr - 4.0 * m);
+  // Larger-magnitude eigenvalue computed directly, the other from the product (stable).
+  const double s_big = 0.5 * (tr + std::copysign(root_disc, tr == 0.0 ? 1.0 : tr));
+  const double s_small = m / s_big;
+  const double s_pos = std::max(s_big, s_small);
+  const double s_neg = std::min(s_big, s_small);
+  Eigen::Vector3d e0;  // null vector of D0
+  if (!null_vector(D0, e0)) return false;
+  if (!null_vector(D0 - s_pos * Eigen::Matrix3d::Identity(), e_pos)) return false;
+  e_pos -= e_pos.dot(e0) * e0;  // enforce orthogonality against rounding
+  e_pos.normalize();
+  e_neg = e0.cross(e_pos);
+  // s+ u+^2 + s- u-^2 = 0  =>  u+ = +-sqrt(-s- / s+) u-
+  slope = std::sqrt(-s_neg / s_pos);
+  return true;
+}
+
+/// The world triangle as the camera sees it: its frame X (two sides and the normal),
+/// inverted for the alignment R = Y X^-1, and its centroid.
+struct WorldTriangle {
+  Eigen::Matrix3d frame_inv;  // X^-1
+  Eigen::Vector3d centroid_w;
+};
+
+/// The camera pose from the three depths `L` along the unit bearings `y`: the rigid alignment
+/// of the camera-frame triangle onto the world one. False when not finite.
+bool align_triangles(const Eigen::Vector3d& L, const std::array<Eigen::Vector3d, 3>& y,
+                     const WorldTriangle& w, SE3d& T) {
+  const Eigen::Vector3d P1 = L(0) * y[0];
+  const Eigen::Vector3d P2 = L(1) * y[1];
+  const Eigen::Vector3d P3 = L(2) * y[2];
+  Eigen::Matrix3d Y;
+  Y.col(0) = P1 - P2;
+  Y.col(1) = P1 - P3;
+  Y.col(2) = Y.col(0).cross(Y.col(1));
+  const Eigen::Matrix3d R0 = Y * w.frame_inv;
+  if (!R0.allFinite()) return false;
+  // Project onto SO(3) (R0 is a rotation up to rounding).
+  const Eigen::Quaterniond quat = Eigen::Quaterniond(R0).normalized();
+  T = SE3d::Identity();
+  T.linear() = quat.toRotationMatrix();
+  T.translation() = (P1 + P2 + P3) / 3.0 - T.linear() * w.centroid_w;
+  return T.matrix().allFinite();
+}
+
 }  // namespace
 
 int solve_p3p(const std::array<Eigen::Vector3d, 3>& bearings,
@@ -215,69 +313,14 @@ int solve_p3p(const std::array<Eigen::Vector3d, 3>& bearings,
   const double scale = a12_raw + a13_raw + a23_raw;
   const DepthProblem dp{a12_raw / scale, a13_raw / scale, a23_raw / scale, b12, b13, b23};
 
-  // ---- Conic pencil and its degenerate member ----------------------------------------
-  // L^T M_ij L = a_ij with M12 = [1 -b12 0; -b12 1 0; 0 0 0] etc.; D1 = a23 M12 - a12 M23,
-  // D2 = a23 M13 - a13 M23 are homogeneous: L^T D1 L = L^T D2 L = 0.
-  Eigen::Matrix3d D1;
-  D1 << dp.a23, -dp.a23 * b12, 0.0,                  //
-      -dp.a23 * b12, dp.a23 - dp.a12, dp.a12 * b23,  //
-      0.0, dp.a12 * b23, -dp.a12;
-  Eigen::Matrix3d D2;
-  D2 << dp.a23, 0.0, -dp.a23 * b13,  //
-      0.0, -dp.a13, dp.a13 * b23,    //
-      -dp.a23 * b13, dp.a13 * b23, dp.a23 - dp.a13;
-  // det(u D1 + v D2) = u^3 det D1 + u^2 v tr(adj(D1) D2) + u v^2 tr(adj(D2) D1) + v^3 det D2.
-  const double k0 = D1.determinant();
-  const double k1 = (adjugate(D1).cwiseProduct(D2)).sum();
-  const double k2 = (adjugate(D2).cwiseProduct(D1)).sum();
-  const double k3 = D2.determinant();
-  // Solve in the orientation with the larger leading coefficient (roots stay bounded).
-  const bool in_gamma = std::abs(k3) >= std::abs(k0);  // D0 = D1 + g D2, else D0 = g D1 + D2
-  std::array<double, 3> roots{};
-  const int num_roots =
-      in_gamma ? solve_cubic(k3, k2, k1, k0, roots) : solve_cubic(k0, k1, k2, k3, roots);
-  // Of the real roots, take the one whose line pair is best conditioned.
+  // ---- The conic pencil's line pair D0, and D3 to intersect its lines with -----------
   Eigen::Matrix3d D0;
-  double best_pairness = -kMinLinePairness;
-  double best_root = 0.0;
-  bool found = false;
-  for (int k = 0; k < num_roots; ++k) {
-    const Eigen::Matrix3d D =
-        in_gamma ? Eigen::Matrix3d(D1 + roots[k] * D2) : Eigen::Matrix3d(roots[k] * D1 + D2);
-    const double norm2 = D.squaredNorm();
-    if (!(norm2 > 0.0)) continue;
-    const double pairness = principal_minor_sum(D) / norm2;
-    if (pairness < best_pairness) {
-      best_pairness = pairness;
-      best_root = roots[k];
-      D0 = D;
-      found = true;
-    }
-  }
-  if (!found) return 0;
-  // D3: the pencil member least like D0, intersected with its lines below.
-  const bool d0_mostly_d1 = in_gamma ? std::abs(best_root) <= 1.0 : std::abs(best_root) >= 1.0;
-  const Eigen::Matrix3d& D3 = d0_mostly_d1 ? D2 : D1;
-
-  // ---- Split D0 = s+ e+ e+^T + s- e- e-^T into its two lines -------------------------
-  D0 /= std::sqrt(D0.squaredNorm());
-  const double tr = D0.trace();
-  const double m = principal_minor_sum(D0);  // s+ * s- < 0
-  const double root_disc = std::sqrt(tr * tr - 4.0 * m);
-  // Larger-magnitude eigenvalue computed directly, the other from the product (stable).
-  const double s_big = 0.5 * (tr + std::copysign(root_disc, tr == 0.0 ? 1.0 : tr));
-  const double s_small = m / s_big;
-  const double s_pos = std::max(s_big, s_small);
-  const double s_neg = std::min(s_big, s_small);
-  Eigen::Vector3d e0;  // null vector of D0
+  Eigen::Matrix3d D3;
+  if (!degenerate_member(dp, D0, D3)) return 0;
   Eigen::Vector3d e_pos;
-  if (!null_vector(D0, e0)) return 0;
-  if (!null_vector(D0 - s_pos * Eigen::Matrix3d::Identity(), e_pos)) return 0;
-  e_pos -= e_pos.dot(e0) * e0;  // enforce orthogonality against rounding
-  e_pos.normalize();
-  const Eigen::Vector3d e_neg = e0.cross(e_pos);
-  // s+ u+^2 + s- u-^2 = 0  =>  u+ = +-sqrt(-s- / s+) u-
-  const double slope = std::sqrt(-s_neg / s_pos);
+  Eigen::Vector3d e_neg;
+  double slope = 0.0;
+  if (!split_line_pair(D0, e_pos, e_neg, slope)) return 0;
 
   // S = M12 + M13 + M23, the sum of the three distance forms: positive definite for
   // distinct bearings, it fixes the scale of a direction L (L^T S L = a12 + a13 + a23).
@@ -287,13 +330,11 @@ int solve_p3p(const std::array<Eigen::Vector3d, 3>& bearings,
       -b13, -b23, 2.0;
   const double a_sum = dp.a12 + dp.a13 + dp.a23;  // == 1
 
-  // Inverse Xi of the world triangle frame X, for the alignment R = Y X^-1.
   Eigen::Matrix3d X;
   X.col(0) = d12;
   X.col(1) = d13;
   X.col(2) = normal;
-  const Eigen::Matrix3d Xi = X.inverse();
-  const Eigen::Vector3d centroid_w = (points_w[0] + points_w[1] + points_w[2]) / 3.0;
+  const WorldTriangle world{X.inverse(), (points_w[0] + points_w[1] + points_w[2]) / 3.0};
   const double depth_scale = std::sqrt(scale);
 
   int num = 0;
@@ -329,23 +370,8 @@ int solve_p3p(const std::array<Eigen::Vector3d, 3>& bearings,
       if (!(L.minCoeff() > kMinDepth)) continue;
       dp.refine(L);
       if (!(L.minCoeff() > kMinDepth)) continue;
-      // Camera-frame points and the rigid alignment of the two triangles.
-      L *= depth_scale;
-      const Eigen::Vector3d P1 = L(0) * y[0];
-      const Eigen::Vector3d P2 = L(1) * y[1];
-      const Eigen::Vector3d P3 = L(2) * y[2];
-      Eigen::Matrix3d Y;
-      Y.col(0) = P1 - P2;
-      Y.col(1) = P1 - P3;
-      Y.col(2) = Y.col(0).cross(Y.col(1));
-      const Eigen::Matrix3d R0 = Y * Xi;
-      if (!R0.allFinite()) continue;
-      // Project onto SO(3) (R0 is a rotation up to rounding).
-      const Eigen::Quaterniond quat = Eigen::Quaterniond(R0).normalized();
-      SE3d T = SE3d::Identity();
-      T.linear() = quat.toRotationMatrix();
-      T.translation() = (P1 + P2 + P3) / 3.0 - T.linear() * centroid_w;
-      if (!T.matrix().allFinite()) continue;
+      SE3d T;
+      if (!align_triangles(L * depth_scale, y, world, T)) continue;
       T_c_w[num++] = T;
       if (num == kMaxP3pSolutions) return num;
     }

@@ -36,15 +36,14 @@ namespace mer::geometry {
 
 /// Options of the robust PnP (config section `tracking.pnp`).
 struct PnpOptions {
-  int max_iterations = 200;          ///< RANSAC iteration (sample) cap
-  double confidence = 0.999;         ///< early-stop confidence of having drawn an all-inlier sample
-  double inlier_threshold_px = 2.5;  ///< inlier reprojection error, px at level 0 (x sigma_i)
-  int min_inliers = 15;              ///< fewer final inliers -> failure
-  int lo_min_inliers = 10;           ///< a new best model with at least this many inliers is
-                                     ///< refit on its inliers (LO-RANSAC); larger = fewer LO runs
-  int refine_iterations = 10;        ///< LM iterations of the final robust refinement
-  double huber_px = 2.0;             ///< Huber kernel width, px (on |r| / sigma)
-  std::uint64_t seed = 1;            ///< RANSAC sampler seed (re-seeded on every call)
+  int max_iterations = 200;
+  double confidence = 0.999;
+  double inlier_threshold_px = 2.5;
+  int min_inliers = 15;
+  int lo_min_inliers = 10;
+  int refine_iterations = 10;
+  double huber_px = 2.0;
+  std::uint64_t seed = 1;
 
   template <class V>
   void visit(V& v) {

@@ -61,25 +61,21 @@ namespace mer::geometry {
 
 /// Options of the two-view initializer (config section `tracking.init`).
 struct TwoViewOptions {
-  int ransac_iterations = 200;  ///< RANSAC iterations (shared by the H and F hypotheses)
-  double sigma_px = 1.0;        ///< keypoint noise sigma for chi2 thresholds, px
-  double min_parallax_deg =
-      1.0;                    ///< median parallax needed (refuses pure rotation, tiny baselines)
-  int min_matches = 100;      ///< fewer correspondences -> refuse
-  int min_triangulated = 50;  ///< fewer good 3D points -> refuse
-  double min_median_disparity_px = 8.0;         ///< below -> static scene / no motion, refuse
-  double homography_ratio = 0.45;               ///< R_H above -> homography model
-  double min_point_parallax_deg = 0.5;          ///< points seen under less parallax are not kept
-  double confident_parallax_deg = 3.0;          ///< median parallax accepted whatever the model
-  double max_translation_dir_sigma_deg = 0.25;  ///< below it: essential with a smaller sigma
-  double ambiguity_ratio = 0.7;  ///< a 2nd candidate consistent with this fraction of the
-                                 ///< winner's points, not refuted by them -> ambiguous, refuse
-  double plane_hint_min_parallax_deg = 2.0;  ///< an ambiguous homography reports its candidates'
-                                             ///< plane normals from this median parallax on
-  double plane_hint_agree_deg = 5.0;         ///< a candidate's normal this close to a hint agrees
-  double plane_hint_refute_deg = 12.0;       ///< every other tied candidate this far from all hints
-                                             ///< -> the agreeing candidate wins the tie
-  std::uint64_t seed = 1;                    ///< RANSAC random seed (deterministic runs)
+  int ransac_iterations = 200;
+  double sigma_px = 1.0;
+  double min_parallax_deg = 1.0;
+  int min_matches = 100;
+  int min_triangulated = 50;
+  double min_median_disparity_px = 8.0;
+  double homography_ratio = 0.45;
+  double min_point_parallax_deg = 0.5;
+  double confident_parallax_deg = 3.0;
+  double max_translation_dir_sigma_deg = 0.25;
+  double ambiguity_ratio = 0.7;
+  double plane_hint_min_parallax_deg = 2.0;
+  double plane_hint_agree_deg = 5.0;
+  double plane_hint_refute_deg = 12.0;
+  std::uint64_t seed = 1;
 
   template <class V>
   void visit(V& v) {

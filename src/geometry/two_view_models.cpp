@@ -14,7 +14,6 @@ namespace two_view_detail {
 namespace {
 
 /// 95 % quantile of chi2 with 1 dof: squared point-to-epipolar-line distance / variance.
-constexpr double kChi2OneDof95 = 3.841;
 /// Score offset per image of an F inlier. A correct model's 2-dof residual (H) has an expected
 /// chi2 one larger than a 1-dof residual (F: distance to a line), so with the same offset F
 /// would out-score H even on a plane, where both explain every point. One less makes a correct

@@ -12,12 +12,11 @@
 
 #include <Eigen/Core>
 
+#include "core/chi2.h"
 #include "geometry/two_view.h"
 
 namespace mer::geometry::two_view_detail {
 
-/// 95 % quantile of chi2 with 2 dof: squared point-to-point distance / variance.
-constexpr double kChi2TwoDof95 = 5.991;
 /// Transfer and epipolar residuals carry the keypoint noise of both images: their variance is
 /// about twice the keypoint variance sigma^2.
 constexpr double kResidualVarianceFactor = 2.0;

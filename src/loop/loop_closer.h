@@ -45,6 +45,7 @@
 #include <string>
 #include <vector>
 
+#include "core/chi2.h"
 #include "core/options.h"
 #include "geometry/camera_model.h"
 #include "geometry/sim3.h"
@@ -59,32 +60,31 @@ namespace mer::loop {
 
 /// Options of loop closure (config section `loop`).
 struct LoopOptions {
-  bool enabled = true;               ///< look for loops at every new keyframe
-  int min_keyframe_gap = 20;         ///< candidates are at least this many keyframes older
-  double min_key_score_ratio = 1.2;  ///< retrieval score a candidate needs, x the median
-  int max_candidates = 3;            ///< candidates checked geometrically per keyframe
-  int max_descriptor_distance = 50;  ///< Hamming distance of a point match, at most
-  double ratio = 0.8;                ///< best / second-best distance, at most
-  int min_matches = 20;              ///< point matches needed before RANSAC
-  int min_inliers = 20;              ///< matches the similarity must explain
-  int guided_min_inliers = 10;       ///< a RANSAC similarity this well supported is used to
-                                     ///< project the old points and find more matches (0: off)
-  int ransac_iterations = 300;       ///< 3-point samples
-  int refine_iterations = 10;        ///< reprojection refinement of the similarity (0: off)
-  double inlier_chi2 = 5.991;        ///< squared transfer error / sigma^2 (2 dof, 95 %)
-  int min_edge_weight = 15;          ///< shared points a covisibility pose-graph edge needs
-  int pose_graph_iterations = 20;    ///< Levenberg-Marquardt iterations of the pose graph
-  double fuse_radius_px = 6.0;       ///< loop fusion search radius, keypoint sigmas
-  int full_ba_iterations = 30;       ///< full-graph BA iterations after a loop (0: none)
-  int cooldown_keyframes = 5;        ///< keyframes after a loop before the next is looked for
-  int consistent_checks = 1;         ///< consecutive keyframes that must find the same place
-  int merge_consistent_checks = 1;   ///< the same, for a match onto another segment (a merge)
-  double max_drift_fraction = 0.2;   ///< a loop implying more drift per path length is refused
-  bool exclude_connected = false;    ///< keyframes sharing points with the new one: no candidate
-  double min_time_gap_s = 3.0;       ///< candidates were made at least this long before
-  double min_found_fraction = 0.3;   ///< share found both ways, x the usual one (0: off)
-  bool merge_segments = true;        ///< another segment's keyframes are candidates: merges
-  int seed = 1;                      ///< RANSAC sampling seed
+  bool enabled = true;
+  int min_keyframe_gap = 20;
+  double min_key_score_ratio = 1.2;
+  int max_candidates = 3;
+  int max_descriptor_distance = 50;
+  double ratio = 0.8;
+  int min_matches = 20;
+  int min_inliers = 20;
+  int guided_min_inliers = 10;
+  int ransac_iterations = 300;
+  int refine_iterations = 10;
+  double inlier_chi2 = kChi2TwoDof95;
+  int min_edge_weight = 15;
+  int pose_graph_iterations = 20;
+  double fuse_radius_px = 6.0;
+  int full_ba_iterations = 30;
+  int cooldown_keyframes = 5;
+  int consistent_checks = 1;
+  int merge_consistent_checks = 1;
+  double max_drift_fraction = 0.2;
+  bool exclude_connected = false;
+  double min_time_gap_s = 3.0;
+  double min_found_fraction = 0.3;
+  bool merge_segments = true;
+  int seed = 1;
 
   template <class V>
   void visit(V& v) {

@@ -6,6 +6,7 @@
 
 #include <Eigen/Geometry>
 
+#include "core/chi2.h"
 #include "loop/descriptor_match.h"
 #include "platform/clock.h"
 
@@ -14,7 +15,6 @@ namespace mer::loop {
 namespace {
 
 /// Squared reprojection error / sigma^2 of an inlier (2 dof, 95 %), as the tracker's gate.
-constexpr double kChi2TwoDof95 = 5.991;
 /// Keypoint grid of the projection search: cells over the keypoints' bounding box.
 constexpr int kGridCols = 48;
 constexpr int kGridRows = 36;

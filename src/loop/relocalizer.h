@@ -56,19 +56,19 @@ namespace mer::loop {
 
 /// Options of relocalization (config section `relocalization`).
 struct RelocalizerOptions {
-  bool enabled = true;               ///< offer frames of a lost spell to the relocalizer
-  int max_candidates = 5;            ///< keyframes retrieved and checked, best first
-  int match_neighbours = 2;          ///< covisible keyframes whose points join a candidate's
-  int local_keyframes = 8;           ///< covisible keyframes of the local map (refinement)
-  int max_descriptor_distance = 50;  ///< Hamming distance of a descriptor match, at most
-  double ratio = 0.8;                ///< best / second-best distance, at most
-  int min_matches = 15;              ///< descriptor matches needed before PnP
-  int max_projection_distance = 60;  ///< Hamming distance of a projection match, at most
-  double search_radius_px = 8.0;     ///< projection search radius, px x level scale
-  int min_inliers = 30;              ///< refined inliers a relocalization needs
-  int max_keypoints = 2000;          ///< frame keypoints used, at most (first ones)
-  double max_time_ms = 50.0;         ///< no new candidate is started after this time
-  geometry::PnpOptions pnp;          ///< P3P-RANSAC on the descriptor matches
+  bool enabled = true;
+  int max_candidates = 5;
+  int match_neighbours = 2;
+  int local_keyframes = 8;
+  int max_descriptor_distance = 50;
+  double ratio = 0.8;
+  int min_matches = 15;
+  int max_projection_distance = 60;
+  double search_radius_px = 8.0;
+  int min_inliers = 30;
+  int max_keypoints = 2000;
+  double max_time_ms = 50.0;
+  geometry::PnpOptions pnp;
 
   template <class V>
   void visit(V& v) {

@@ -10,17 +10,14 @@ namespace mer::map {
 /// Options of the map (config section `map`). All storage is sized from these at
 /// construction; nothing grows afterwards.
 struct MapOptions {
-  int max_keyframes = 400;                ///< keyframe slots (freed slots are reused)
-  int max_points = 150000;                ///< map-point slots (freed slots are reused)
-  int max_keypoints_per_keyframe = 1500;  ///< keypoint slots per keyframe
-  int max_observations_per_point = 24;    ///< keyframe observations kept per point
-  int max_covisible_per_keyframe = 64;    ///< strongest covisibility edges kept per keyframe
-  double cell_size = 0.25;                ///< edge of a 3D cell, map units (median depth 1 at init)
-  int cell_table_size = 65536;            ///< cell hash table entries (power of two)
-  int points_per_cell = 48;               ///< point ids one cell holds
-  /// Ratio of the largest to the smallest pyramid scale of the features
-  /// (scale_factor^(levels-1), 1.2^7 for an 8-level ORB pyramid); sets
-  /// PointView::min_distance = max_distance / distance_scale_range.
+  int max_keyframes = 400;
+  int max_points = 150000;
+  int max_keypoints_per_keyframe = 1500;
+  int max_observations_per_point = 24;
+  int max_covisible_per_keyframe = 64;
+  double cell_size = 0.25;
+  int cell_table_size = 65536;
+  int points_per_cell = 48;
   double distance_scale_range = 3.5831808;
 
   template <class V>

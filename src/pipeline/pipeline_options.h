@@ -27,13 +27,13 @@ inline constexpr std::array<std::string_view, 4> kLogLevelNames{"debug", "info",
 
 /// How the pipeline runs (config section `pipeline`).
 struct PipelineOptions {
-  SensorMode mode = SensorMode::kMono;  ///< mono | rgbd (rgbd needs a source with depth)
-  bool lockstep = false;                ///< run stages sequentially and deterministically
-  int max_frames = 0;                   ///< stop after this many frames from the source (0: all)
-  int acquire_timeout_ms = 1000;        ///< wait for a frame this long before retrying
-  int source_timeout_ms = 10000;        ///< no frame for this long ends the run (source_error)
-  FocalMode focal = FocalMode::kFixed;  ///< fixed: use calibration; auto: estimate the focal length
-  bool final_ba = false;                ///< after the stream: full-graph BA (offline, unbounded)
+  SensorMode mode = SensorMode::kMono;
+  bool lockstep = false;
+  int max_frames = 0;
+  int acquire_timeout_ms = 1000;
+  int source_timeout_ms = 10000;
+  FocalMode focal = FocalMode::kFixed;
+  bool final_ba = false;
 
   template <class V>
   void visit(V& v) {
@@ -58,25 +58,21 @@ struct PipelineOptions {
 /// Thread placement and latency budgets of the board (config section `board`; a file from
 /// configs/boards/ passed with --board holds the same keys at its top level).
 struct BoardOptions {
-  std::string profile = "generic_x86";  ///< built-in thread table (platform/thread_table.h)
-  int capture_core = -2;                ///< CPU for the capture thread (-1: any, -2: from profile)
-  int capture_priority = -1;            ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
-  int tracking_core = -2;               ///< CPU for the tracking thread (-1: any, -2: from profile)
-  int tracking_priority = -1;           ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
-  int output_core = -2;                 ///< CPU for the output thread (-1: any, -2: from profile)
-  int output_priority = -1;             ///< priority of the output thread (-1: from profile)
-  int backend_core = -2;                ///< CPU for the back-end thread (-1: any, -2: from profile)
-  int backend_priority = -1;            ///< SCHED_FIFO priority 1..99, 0: normal, -1: from profile
-  bool lock_memory = false;  ///< mlockall() at start (needs CAP_IPC_LOCK or a memlock limit)
-  /// Blocks of at least this many KiB get their own mapping, unmapped when freed (glibc
-  /// M_MMAP_THRESHOLD); 0 keeps the allocator's adaptive threshold, under which resident
-  /// memory creeps up over long runs.
+  std::string profile = "generic_x86";
+  int capture_core = -2;
+  int capture_priority = -1;
+  int tracking_core = -2;
+  int tracking_priority = -1;
+  int output_core = -2;
+  int output_priority = -1;
+  int backend_core = -2;
+  int backend_priority = -1;
+  bool lock_memory = false;
   int malloc_mmap_threshold_kb = 128;
-  double capture_budget_ms =
-      15.0;  ///< capture stage budget per frame, ms (incl. synthetic rendering)
-  double tracking_budget_ms = 30.0;    ///< tracking stage budget per frame, ms
-  double output_budget_ms = 5.0;       ///< output stage budget per frame, ms
-  double end_to_end_budget_ms = 50.0;  ///< frame ready -> tracking result, ms
+  double capture_budget_ms = 15.0;
+  double tracking_budget_ms = 30.0;
+  double output_budget_ms = 5.0;
+  double end_to_end_budget_ms = 50.0;
 
   template <class V>
   void visit(V& v) {
@@ -118,9 +114,9 @@ struct BoardOptions {
 
 /// Latency and allocation accounting (config section `telemetry`).
 struct TelemetryOptions {
-  int warmup_frames = 10;     ///< frames excluded from steady-state allocation counts
-  int trace_capacity = 4096;  ///< latency samples kept per stage in the trace ring
-  platform::LogLevel log_level = platform::LogLevel::kInfo;  ///< least severe log level printed
+  int warmup_frames = 10;
+  int trace_capacity = 4096;
+  platform::LogLevel log_level = platform::LogLevel::kInfo;
 
   template <class V>
   void visit(V& v) {
@@ -135,7 +131,7 @@ struct TelemetryOptions {
 
 /// Output files (config section `output`).
 struct OutputOptions {
-  int flush_every = 30;  ///< flush output files every N frames (bounds loss on power cut)
+  int flush_every = 30;
 
   template <class V>
   void visit(V& v) {
