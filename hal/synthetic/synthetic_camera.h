@@ -16,6 +16,7 @@
 #include <array>
 #include <cstdint>
 #include <random>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -375,6 +376,22 @@ class SyntheticCamera final : public CameraSource {
   void make_corridor_textures(const std::vector<cv::Mat>& sources, std::mt19937& rng);
   void render_impl(const SE3d& T_w_c, cv::Mat& gray, cv::Mat* depth, std::uint64_t noise_offset,
                    float gain, bool add_noise) const;
+  /// A box and the pixel rectangle its projection covers (render_impl's per-frame culling).
+  struct BoxWindow {
+    const SceneBox* box = nullptr;
+    int u0 = 0;
+    int u1 = 0;
+    int v0 = 0;
+    int v1 = 0;
+  };
+  /// The boxes not wholly behind the camera at (R, o) (world from camera), each with the
+  /// bounding rectangle of its projection in a cols x rows image (the whole image when a
+  /// corner is behind the camera); at most out.size(). Returns how many.
+  std::size_t cull_boxes(const Eigen::Matrix3f& R, const Eigen::Vector3f& o, int cols, int rows,
+                         std::span<BoxWindow> out) const;
+  /// Bilinear lookup at level-0 texel coordinates (fu, fv) in [0, w - 1) x [0, h - 1) of mip
+  /// level `level`.
+  static float sample_texture(const Texture& texture, int level, float fu, float fv);
   // Motion blur: the mean of blur_samples renders over the exposure, then noise.
   void render_blurred(double t_s, Frame& f, float gain);
   // hall_drive: half extents of the path's rectangle and its corner radius, m.
