@@ -344,7 +344,8 @@ void write_backend_loop_relocalization(std::ostream& j, const pipeline::Pipeline
     << ", \"longer_checks\": " << tc.relocalization_longer_checks
     << ", \"rejected\": {\"lost_while_confirming\": " << tc.relocalization_rejected_lost
     << ", \"few_found_in_view\": " << tc.relocalization_rejected_found
-    << ", \"outside_motion_bound\": " << tc.relocalization_rejected_bound << "}},\n";
+    << ", \"outside_motion_bound\": " << tc.relocalization_rejected_bound
+    << ", \"after_long_loss\": " << tc.relocalization_rejected_long_loss << "}},\n";
 }
 
 /// The ground-truth audit of relocalizations and loops.

@@ -104,13 +104,16 @@ struct TrackerCounters {
   std::uint64_t relocalization_trusted = 0;     ///< poses within the motion bound, trusted at once
   std::uint64_t relocalization_candidates = 0;  ///< poses that needed confirmation
   std::uint64_t relocalization_confirmed = 0;   ///< of those, confirmed
-  std::uint64_t relocalization_rejected_lost = 0;   ///< refused: a confirming frame was lost
-  std::uint64_t relocalization_rejected_found = 0;  ///< refused: a confirming frame found too
-                                                    ///< few of the map-points in its view
-  std::uint64_t relocalization_rejected_bound = 0;  ///< refused: after a short loss, outside
-                                                    ///< the motion bound
-  std::uint64_t relocalization_longer_checks = 0;   ///< candidates at a place refused earlier
-                                                    ///< in the spell (more frames to confirm)
+  std::uint64_t relocalization_rejected_lost = 0;       ///< refused: a confirming frame was lost
+  std::uint64_t relocalization_rejected_found = 0;      ///< refused: a confirming frame found too
+                                                        ///< few of the map-points in its view
+  std::uint64_t relocalization_rejected_bound = 0;      ///< refused: after a short loss, outside
+                                                        ///< the motion bound
+  std::uint64_t relocalization_rejected_long_loss = 0;  ///< refused: after a long loss
+                                                        ///< (relocalization_check.after_long_loss:
+                                                        ///< merge)
+  std::uint64_t relocalization_longer_checks = 0;       ///< candidates at a place refused earlier
+                                                        ///< in the spell (more frames to confirm)
   std::uint64_t segment_start_waits = 0;  ///< frames without a pose: the start not in the map yet
   std::uint64_t segment_starts_not_queued = 0;  ///< starts that found no free keyframe job
   std::uint64_t segment_starts_refused = 0;     ///< starts the map could not take (full)
@@ -239,6 +242,9 @@ class Tracker {
   /// Where a relocalizer's pose `T_c_w` at `t_ns`, in `segment`, stands against the motion
   /// bound of the last tracked pose (tracking.relocalization_check).
   MotionBound motion_bound(const SE3d& T_c_w, std::int64_t t_ns, std::uint16_t segment) const;
+  /// relocalization_check.after_long_loss is merge and the loss at `t_ns` is long (or a new
+  /// segment is starting): no relocalization, a new segment and a merge bring the camera back.
+  bool long_loss_merges(std::int64_t t_ns) const;
   /// Drops the pending relocalization candidate (it failed to confirm): back to the last
   /// tracked pose (and to the new segment it was returning from); its place counts a refusal.
   void reject_candidate();

@@ -64,10 +64,21 @@ void Tracker::advance_state(TrackingResult& r) {
   }
   r.tracker_state = state_;
   r.segment = segment_;
-  r.relocalization_request =
-      !candidate_ && (state_ == TrackerState::kRelocalizing ||
-                      (state_ == TrackerState::kNewSegment && relocalization_available_));
+  r.relocalization_request = !candidate_ &&
+                             (state_ == TrackerState::kRelocalizing ||
+                              (state_ == TrackerState::kNewSegment && relocalization_available_)) &&
+                             !long_loss_merges(r.t_ns);
   if (r.relocalization_request) ++counters_.relocalization_requests;
+}
+
+bool Tracker::long_loss_merges(std::int64_t t_ns) const {
+  const RelocalizationCheckOptions& o = opts_.relocalization_check;
+  if (!o.enabled || o.after_long_loss != LongLossReturn::kMerge) return false;
+  // Only where a new segment can hold the frames; otherwise the relocalizer is the only way
+  // back and keeps looking.
+  if (!opts_.new_segments || segments_started_ >= opts_.max_segments) return false;
+  if (state_ == TrackerState::kNewSegment) return true;  // lost for long: a new segment's turn
+  return static_cast<double>(t_ns - last_tracked_t_ns_) * 1e-9 > o.short_loss_s;
 }
 
 bool Tracker::count_failed_start(const TrackingResult& r) {
@@ -391,6 +402,11 @@ bool Tracker::take_hint(const hal::Frame& frame) {
   const MotionBound bound = from_hint && check.enabled
                                 ? motion_bound(hint_.T_c_w, frame.t_ns, segment_)
                                 : MotionBound::kWithin;
+  if (from_hint && bound == MotionBound::kNone && long_loss_merges(frame.t_ns)) {
+    // After a long loss the camera comes back only through a merge (after_long_loss: merge).
+    ++counters_.relocalization_rejected_long_loss;
+    from_hint = false;
+  }
   if (from_hint && bound == MotionBound::kOutside) {
     // After a short loss the camera cannot be there: searched from the last pose instead.
     ++counters_.relocalization_rejected_bound;

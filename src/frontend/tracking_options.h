@@ -2,6 +2,10 @@
 /// @file tracking_options.h
 /// Options of the localization front end (config section `tracking`).
 
+#include <array>
+#include <cstdint>
+#include <string_view>
+
 #include "core/options.h"
 #include "features/extractor.h"
 #include "frontend/keyframe_policy.h"
@@ -222,6 +226,11 @@ struct FocalOptions {
 /// `max_confirm_frames`): the frames for the place outnumber the offers against it. The
 /// count is forgotten when a frame is tracked. Frames of a candidate are reported lost and
 /// write nothing to the map; a refused offer or candidate is counted by reason.
+/// What may bring a camera back to a mapped place after a long loss (beyond short_loss_s).
+enum class LongLossReturn : std::uint8_t { kConfirm, kMerge };
+/// Names of LongLossReturn in config, by value.
+inline constexpr std::array<std::string_view, 2> kLongLossReturnNames{"confirm", "merge"};
+
 struct RelocalizationCheckOptions {
   bool enabled = true;
   double short_loss_s = 0.5;
@@ -232,6 +241,7 @@ struct RelocalizationCheckOptions {
   int confirm_frames = 3;
   double min_found_fraction = 0.4;
   int max_confirm_frames = 30;
+  LongLossReturn after_long_loss = LongLossReturn::kConfirm;
 
   template <class V>
   void visit(V& v) {
@@ -272,6 +282,15 @@ struct RelocalizationCheckOptions {
             "spell must be confirmed on confirm_frames + n frames in a row, at most this many "
             "(and at least confirm_frames)",
             options::Range<int>{1, 100000});
+    v.field("after_long_loss", after_long_loss,
+            "what brings the camera back to a mapped place after a loss longer than "
+            "short_loss_s: confirm (the relocalizer keeps looking, in every segment, and its "
+            "pose is confirmed on the following frames) or merge (the relocalizer looks only "
+            "while the loss is short; after that a new segment holds the frames and joins the "
+            "map only through a loop closure's merge, which checks the new segment's own "
+            "structure against the old map both ways: a view of an unmapped copy of a mapped "
+            "place cannot pass for a return)",
+            options::Names<LongLossReturn>{kLongLossReturnNames});
   }
 };
 

@@ -168,5 +168,31 @@ TEST(RelocalizationCheck, OffTrustsEveryPose) {
   EXPECT_EQ(rig.counters().relocalization_candidates, 0U);
 }
 
+// after_long_loss: merge. While the loss is short the relocalizer is asked and its pose is
+// trusted within the bound, as with confirm. After a long loss (1 s) no relocalization is
+// requested and a pose handed in anyway (a late threaded answer) is refused, even the right
+// one: a new segment holds the frames and a merge brings them back. Without a new segment to
+// hold them (new_segments off) the relocalizer stays the way back and is still asked.
+TEST(RelocalizationCheck, AfterALongLossMergeModeLeavesTheReturnToANewSegment) {
+  for (const bool segments : {true, false}) {
+    TrackingOptions o = options(segments);
+    o.relocalization_check.after_long_loss = LongLossReturn::kMerge;
+    o.new_segment_after_s = 2.0;  // the loss below stays in its first segment
+    RelocRig rig(o);
+    int i = track_then_lose(rig, 3);
+    EXPECT_GT(rig.counters().relocalization_requests, 0U) << "short loss: asked";
+    for (; i < kTrackedFrames + 30; ++i) (void)rig.step(i, true);
+    const std::uint64_t asked = rig.counters().relocalization_requests;
+    const TrackingResult lost = rig.step(i++, true);
+    EXPECT_EQ(lost.relocalization_request, !segments) << "long loss";
+    EXPECT_EQ(rig.counters().relocalization_requests, asked + (segments ? 0U : 1U));
+    rig.hint(i - 1, rig.truth_in_map(i - 1));
+    const TrackingResult r = rig.step(i);
+    EXPECT_FALSE(r.relocalized);
+    EXPECT_EQ(rig.counters().relocalization_rejected_long_loss, segments ? 1U : 0U);
+    EXPECT_EQ(rig.counters().relocalization_candidates, segments ? 0U : 1U);
+  }
+}
+
 }  // namespace
 }  // namespace mer::frontend
