@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <charconv>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -42,10 +43,15 @@ bool load_groundtruth(const std::string& dir, hal::Trajectory& gt, std::string& 
   gt = std::move(r.value());
   return true;
 }
-/// Timestamps of the frames `dir`/frames.csv lists as tracked in `segment` (any segment when
-/// negative), sorted; false with the reason in `note` when the file cannot be read.
-bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::int64_t>& t_ns,
-                          std::string& note) {
+/// A frame frames.csv lists as tracked: its timestamp and segment.
+struct TrackedFrame {
+  std::int64_t t_ns = 0;
+  int segment = 0;
+};
+
+/// The frames `dir`/frames.csv lists as tracked, in file order; false with the reason in
+/// `note` when the file cannot be read.
+bool tracked_frames(const std::string& dir, std::vector<TrackedFrame>& out, std::string& note) {
   const std::string path = (std::filesystem::path(dir) / "frames.csv").string();
   std::ifstream in(path);
   if (!in) {
@@ -55,7 +61,6 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
   constexpr std::size_t kTimeColumn = 1;
   constexpr std::size_t kStateColumn = 2;
   constexpr std::size_t kSegmentColumn = 15;
-  const std::string want = std::to_string(segment);
   std::string line;
   std::getline(in, line);  // header
   std::vector<std::string> cols;
@@ -64,15 +69,49 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
     std::istringstream ss(line);
     for (std::string c; std::getline(ss, c, ',');) cols.push_back(c);
     if (cols.size() <= kSegmentColumn ||
-        cols[kStateColumn] != frontend::to_string(frontend::TrackState::kTracked) ||
-        (segment >= 0 && cols[kSegmentColumn] != want)) {
+        cols[kStateColumn] != frontend::to_string(frontend::TrackState::kTracked)) {
       continue;
     }
-    std::int64_t t = 0;
-    if (parse_seconds_ns(cols[kTimeColumn], t)) t_ns.push_back(t);
+    TrackedFrame f;
+    int segment = 0;
+    const std::string& seg = cols[kSegmentColumn];
+    const auto [end, ec] = std::from_chars(seg.data(), seg.data() + seg.size(), segment);
+    if (ec != std::errc() || end != seg.data() + seg.size()) continue;
+    if (!parse_seconds_ns(cols[kTimeColumn], f.t_ns)) continue;
+    f.segment = segment;
+    out.push_back(f);
+  }
+  return true;
+}
+
+/// Timestamps of the frames `dir`/frames.csv lists as tracked in `segment`, sorted; false
+/// with the reason in `note` when the file cannot be read.
+bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::int64_t>& t_ns,
+                          std::string& note) {
+  std::vector<TrackedFrame> frames;
+  if (!tracked_frames(dir, frames, note)) return false;
+  for (const TrackedFrame& f : frames) {
+    if (f.segment == segment) t_ns.push_back(f.t_ns);
   }
   std::sort(t_ns.begin(), t_ns.end());
   return true;
+}
+
+/// The first tracked frame's timestamp in a segment of `stats` that was not discarded (one
+/// read of frames.csv); `fallback` when there is none or the file cannot be read.
+std::int64_t first_kept_stamp(const std::string& dir, const pipeline::PipelineStats& stats,
+                              std::int64_t fallback) {
+  std::vector<TrackedFrame> frames;
+  std::string ignored;
+  if (!tracked_frames(dir, frames, ignored)) return fallback;
+  std::int64_t first = fallback;
+  for (const TrackedFrame& f : frames) {
+    const bool kept = std::any_of(
+        stats.segments.begin(), stats.segments.end(),
+        [&](const pipeline::SegmentStats& g) { return g.id == f.segment && !g.discarded; });
+    if (kept) first = std::min(first, f.t_ns);
+  }
+  return first;
 }
 
 }  // namespace
@@ -136,15 +175,7 @@ AccuracyReport evaluate_run(const std::string& dir, SensorMode sensor_mode,
   // of the run, in any segment (`tracked` counts them all; trajectory.txt may hold a
   // segment that started later).
   // (Not a discarded segment's: its frames count as lost, the start came later.)
-  std::int64_t t_init = t_first;
-  for (const pipeline::SegmentStats& seg : stats.segments) {
-    if (only_segment >= 0 || seg.discarded) continue;
-    std::vector<std::int64_t> own;
-    std::string ignored;
-    if (segment_frame_stamps(dir, seg.id, own, ignored) && !own.empty()) {
-      t_init = std::min(t_init, own.front());
-    }
-  }
+  const std::int64_t t_init = only_segment >= 0 ? t_first : first_kept_stamp(dir, stats, t_first);
   std::uint64_t since_init = 0;
   for (const auto& p : g) since_init += p.t_ns >= t_init - kMaxDtNs ? 1 : 0;
   if (only_segment < 0 && stats.frames_processed > 0 && since_init > 0) {

@@ -108,6 +108,12 @@ void Tracker::discard_failed_start(TrackingResult& r) {
   ++counters_.discarded_starts;
   ++segments_discarded_;
   begin_next_segment();
+  if (!other_segment_kept()) {
+    // No start is kept: the next one is the map's first (initialized_seq, reference_seq).
+    counters_.initialized = false;
+    counters_.initialized_seq = 0;
+    counters_.reference_seq = 0;
+  }
 }
 
 void Tracker::start_new_segment(std::uint64_t seq) {

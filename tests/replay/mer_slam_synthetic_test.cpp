@@ -562,6 +562,13 @@ TEST(MerSlamSynthetic, StartsLostAtOnceAreDiscarded) {
   EXPECT_EQ(static_cast<int>(s["frames_discarded"]), discarded_frames);
   EXPECT_EQ(static_cast<int>(s["frames_lost"]), frames - kept_frames);
   EXPECT_EQ(static_cast<int>(s["first_pose_seq"]), first_kept);
+  // The map's start is the first kept one: none when every start was discarded.
+  EXPECT_EQ(static_cast<int>(s["tracking"]["initialized"]) != 0, first_kept >= 0);
+  if (first_kept >= 0) {
+    EXPECT_EQ(static_cast<int>(s["tracking"]["initialized_seq"]), first_kept);
+  } else {
+    EXPECT_EQ(static_cast<int>(s["tracking"]["initialized_seq"]), 0);
+  }
   // trajectory.txt holds the main segment's frames only (or none).
   int main_frames = 0;
   for (const cv::FileNode& g : s["segments"]) {
