@@ -439,6 +439,13 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   poor_prediction_ = false;
   bool confirmed = false;
   const double found = last_in_view_ > 0 ? static_cast<double>(r.num_inliers) / last_in_view_ : 0.0;
+  // A pose trusted at once: its frame's share against the usual one (reported with the
+  // relocalization, as a confirmed one reports its lowest; not a check).
+  double at_once_ratio = 0.0;
+  if (from_hint && !candidate_) {
+    const double usual = recent_found_share();
+    at_once_ratio = usual > 0.0 ? found / usual : 0.0;
+  }
   if (candidate_ && !confirm_candidate(frame, found, r, confirmed)) return false;
   r.state = TrackState::kTracked;
   r.steady = true;
@@ -453,6 +460,7 @@ bool Tracker::track(const hal::Frame& frame, TrackingResult& r) {
   counters_.sum_query_spatial += static_cast<std::uint64_t>(r.query_spatial);
   counters_.sum_query_total += static_cast<std::uint64_t>(r.query_total);
 
+  r.reloc_found_ratio = static_cast<float>(at_once_ratio);  // (a confirmed one: decide_keyframe)
   decide_keyframe(frame, from_hint, confirmed, r);
   return true;
 }
@@ -476,7 +484,7 @@ void Tracker::decide_keyframe(const hal::Frame& frame, bool from_hint, bool conf
     reason = KeyframeReason::kRelocalization;
     r.relocalized = true;
     r.reloc_confirmed = confirmed;
-    r.reloc_found_ratio = confirmed ? static_cast<float>(candidate_min_ratio_) : 0.0F;
+    if (confirmed) r.reloc_found_ratio = static_cast<float>(candidate_min_ratio_);
     SE3d T_w_rkf;
     if (reloc_keyframe_ != map::kNoId &&
         map_.keyframe_generation(reloc_keyframe_) == reloc_generation_ &&

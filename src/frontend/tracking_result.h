@@ -121,7 +121,8 @@ struct TrackingResult {
   std::int64_t reloc_keyframe_t_ns = 0;
   SE3d T_rkf_c = SE3d::Identity();
   bool reloc_confirmed = false;    ///< confirmed on following frames (not trusted at once)
-  float reloc_found_ratio = 0.0F;  ///< confirmed: lowest found share / usual share meanwhile
+  float reloc_found_ratio = 0.0F;  ///< found share / usual share: the lowest while
+                                   ///< confirming, or the frame's when trusted at once
   std::uint16_t segment = 0;       ///< map segment whose world frame T_w_c is in (0: the first)
   /// This frame found the segment `discarded_segment` a failed start (tracking.init.
   /// discard_failed_starts): the frames tracked in it count as lost from now on.

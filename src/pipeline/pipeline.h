@@ -150,7 +150,8 @@ struct RelocalizationEvent {
   std::uint16_t segment = 0;       ///< the segment tracking resumed in
   SE3d T_kf_c = SE3d::Identity();  ///< frame pose relative to that keyframe, map units
   bool confirmed = false;          ///< confirmed on following frames, not trusted at once
-  float found_ratio = 0.0F;        ///< confirmed: lowest found share / usual meanwhile
+  float found_ratio = 0.0F;        ///< found share / usual: lowest while confirming,
+                                   ///< or the frame's when trusted at once
 };
 
 /// Accepted relocalizations kept per run, at most (later ones are only counted).
