@@ -73,12 +73,10 @@ bool tracked_frames(const std::string& dir, std::vector<TrackedFrame>& out, std:
       continue;
     }
     TrackedFrame f;
-    int segment = 0;
     const std::string& seg = cols[kSegmentColumn];
-    const auto [end, ec] = std::from_chars(seg.data(), seg.data() + seg.size(), segment);
+    const auto [end, ec] = std::from_chars(seg.data(), seg.data() + seg.size(), f.segment);
     if (ec != std::errc() || end != seg.data() + seg.size()) continue;
     if (!parse_seconds_ns(cols[kTimeColumn], f.t_ns)) continue;
-    f.segment = segment;
     out.push_back(f);
   }
   return true;

@@ -68,8 +68,8 @@ void evaluate_outputs(const std::string& out, mer::SensorMode mode,
 /// The final map re-anchors trajectory.txt's frames: the main segment's and those of the
 /// segments that joined it, each anchor scaled by its segment's merges. Writes and scores
 /// trajectory_final.txt; false on a write error (reported).
-bool write_final_trajectory(const std::string& out, mer::SensorMode mode,
-                            mer::pipeline::Pipeline& pipe, mer::app::RunInfo& info) {
+bool write_and_score_final_trajectory(const std::string& out, mer::SensorMode mode,
+                                      mer::pipeline::Pipeline& pipe, mer::app::RunInfo& info) {
   using namespace mer;
   if (out.empty() || pipe.stats().frames_processed == 0) return true;
   std::uint16_t main_segment = 0;
@@ -195,7 +195,7 @@ int main(int argc, char** argv) {
     drain.stop();  // print pending warnings before the summary
     evaluate_outputs(args.output_dir, config.pipeline.mode, pipe, info);
     const bool final_written =
-        write_final_trajectory(args.output_dir, config.pipeline.mode, pipe, info);
+        write_and_score_final_trajectory(args.output_dir, config.pipeline.mode, pipe, info);
     const bool gt_checked = !args.gt_check || check_map_against_truth(args, config, pipe, info);
     if ((!final_written || !gt_checked) && code == 0) code = 4;
     if (!args.output_dir.empty()) {
