@@ -207,6 +207,9 @@ void write_tracking(std::ostream& j, const pipeline::PipelineStats& st) {
     << ", \"frames_oriented\": " << tc.frames_oriented
     << ", \"failed_starts\": " << tc.failed_starts
     << ", \"discarded_starts\": " << tc.discarded_starts
+    << ", \"init_match_audit\": {\"matches\": " << tc.init_gt_matches
+    << ", \"wrong\": " << tc.init_gt_wrong << ", \"start_matches\": " << tc.start_gt_matches
+    << ", \"start_wrong\": " << tc.start_gt_wrong << "}"
     << ", \"last_init_refusal\": " << json_string(tc.last_init_refusal) << ", \"init_refused\": {";
   for (std::size_t i = 1; i < tc.init_frame_refusals.size(); ++i) {
     j << (i > 1 ? ", " : "")

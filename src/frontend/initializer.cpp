@@ -15,7 +15,6 @@ namespace {
 
 constexpr double kRgbdMinDepthM = 0.1;  // RGB-D initialization: valid sensor depth range, m
 constexpr double kRgbdMaxDepthM = 10.0;
-constexpr int kNoMatch = -1;
 // Re-projects the rotation onto SO(3).
 SE3d orthonormalized(const SE3d& T) {
   SE3d out = T;
@@ -73,10 +72,18 @@ Initializer::Initializer(const TrackingOptions& opts, SensorMode mode)
       scale_factor_(opts.extractor.scale_factor),
       seed_(opts.pnp.seed),
       rgbd_max_depth_step_(opts.rgbd_max_depth_step),
-      rgbd_(mode == SensorMode::kRgbd) {}
+      rgbd_(mode == SensorMode::kRgbd),
+      num_levels_(std::max(1, opts.extractor.num_levels)) {}
 
-void Initializer::reserve(int max_keypoints) {
+void Initializer::reserve(int max_keypoints, int width, int height) {
   const auto n = static_cast<std::size_t>(max_keypoints);
+  if (!rgbd_ && opts_.align.enabled && width > 0 && height > 0) {
+    const cv::Mat blank(height, width, CV_8UC1, cv::Scalar(0));
+    build_levels(blank, ref_levels_);
+    build_levels(blank, cur_levels_);
+    ref_patch_.resize(n);
+    ref_patch_ok_.reserve(n);
+  }
   ref_kps_.reserve(n);
   ref_descs_.reserve(n);
   ref_prev_.reserve(n);
@@ -89,6 +96,7 @@ void Initializer::reserve(int max_keypoints) {
   init_cur_idx_.reserve(n);
   scratch_.reserve(n);
   start_.reserve(max_keypoints);
+  start_uv_.resize(n);
   max_keypoints_ = max_keypoints;
   const auto nv = static_cast<std::size_t>(opts_.window.max_views);
   win_seq_.assign(nv, 0);
@@ -143,10 +151,42 @@ void Initializer::set_reference(const hal::Frame& frame, const KeypointGrid& fea
   plane_hints_.clear();
   ref_seq_ = frame.seq;
   ref_t_ns_ = frame.t_ns;
+  if (!rgbd_ && opts_.align.enabled) {
+    build_levels(frame.gray, ref_levels_);
+    sample_reference_patches();
+  }
+  // The audit's copy reuses its buffer: frames of one source have one size (no allocation
+  // after the first reference).
+  ref_gt_ =
+      !rgbd_ && frame.has_ground_truth && !frame.depth.empty() && frame.depth.type() == CV_32FC1;
+  if (ref_gt_) {
+    frame.depth.copyTo(ref_depth_gt_);
+    ref_T_w_c_gt_ = frame.T_w_c_gt;
+  }
   win_views_ = 0;
   win_stride_ = 1;
   frames_since_ref_ = 0;
   ref_first_matches_ = 0;
+}
+
+void Initializer::audit_matches(const hal::Frame& frame, const geometry::Pinhole& K,
+                                InitDecision& d) const {
+  if (!ref_gt_ || !frame.has_ground_truth) return;
+  const SE3d T_cur_ref = frame.T_w_c_gt.inverse() * ref_T_w_c_gt_;
+  for (std::size_t i = 0; i < init_uv0_.size(); ++i) {
+    const int u = static_cast<int>(std::lround(init_uv0_[i].x()));
+    const int v = static_cast<int>(std::lround(init_uv0_[i].y()));
+    if (u < 0 || v < 0 || u >= ref_depth_gt_.cols || v >= ref_depth_gt_.rows) continue;
+    const double z = ref_depth_gt_.at<float>(v, u);
+    if (!(z > 0.0)) continue;
+    const Eigen::Vector3d X_ref(z * (init_uv0_[i].x() - K.cx) / K.fx,
+                                z * (init_uv0_[i].y() - K.cy) / K.fy, z);
+    const Eigen::Vector3d X = T_cur_ref * X_ref;
+    if (!(X.z() > 0.0)) continue;
+    const Eigen::Vector2d uv(K.fx * X.x() / X.z() + K.cx, K.fy * X.y() / X.z() + K.cy);
+    ++d.gt_checked;
+    if ((uv - init_uv1_[i]).norm() > kGtWrongMatchPx) ++d.gt_wrong;
+  }
 }
 
 int Initializer::match_reference(const KeypointGrid& features) {
@@ -225,7 +265,9 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
     d.refusal = InitRefusal::kNoReference;
     return;
   }
-  const int m = match_reference(features);
+  int m = match_reference(features);
+  if (opts_.align.enabled) m = align_matches(frame);
+  audit_matches(frame, d.K, d);
   if (ref_first_matches_ == 0) ref_first_matches_ = m;
   if (m < opts_.two_view.min_matches) {
     set_reference(frame, features);
@@ -276,7 +318,7 @@ void Initializer::initialize_mono(const hal::Frame& frame, const KeypointGrid& f
         renew) {
       set_reference(frame, features, d.has_orientation ? &d.R_c_w : nullptr);
     } else {
-      remember_frame(frame, features);
+      remember_frame(frame);
     }
     return;
   }
@@ -329,6 +371,7 @@ void Initializer::make_start(const hal::Frame& frame, const KeypointGrid& featur
     start_.points_w[ui] = X;
     start_.first_keypoint[ui] = static_cast<std::uint32_t>(k0);
     start_.second_keypoint[ui] = static_cast<std::uint32_t>(k);
+    start_uv_[ui] = init_uv1_[i].cast<float>();
     ++ni;
     scratch_.push_back(z1);
   }
@@ -350,7 +393,7 @@ void Initializer::make_start(const hal::Frame& frame, const KeypointGrid& featur
   focal.fix_at_init(frame.seq);
 }
 
-void Initializer::remember_frame(const hal::Frame& frame, const KeypointGrid& features) {
+void Initializer::remember_frame(const hal::Frame& frame) {
   if (!opts_.window.enabled) return;
   ++frames_since_ref_;
   if (frames_since_ref_ % win_stride_ != 0) return;
@@ -370,16 +413,14 @@ void Initializer::remember_frame(const hal::Frame& frame, const KeypointGrid& fe
     if (frames_since_ref_ % win_stride_ != 0) return;
   }
   if (win_views_ >= max_views) return;  // max_views 1: no room after the halving
-  const std::span<const features::Keypoint> kps = features.keypoints();
   const auto slot = static_cast<std::size_t>(win_views_);
   win_seq_[slot] = frame.seq;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const std::size_t nref = std::min(ref_kps_.size(), nk);  // the grid holds at most nk
   for (std::size_t i = 0; i < nref; ++i) {
     const int k = ref_match_[i];
-    win_uv_[slot * nk + i] = k == kNoMatch ? Eigen::Vector2f(nan, nan)
-                                           : Eigen::Vector2f(kps[static_cast<std::size_t>(k)].x,
-                                                             kps[static_cast<std::size_t>(k)].y);
+    // (ref_prev_: where the match is in this frame, aligned with init.align)
+    win_uv_[slot * nk + i] = k == kNoMatch ? Eigen::Vector2f(nan, nan) : ref_prev_[i].cast<float>();
   }
   ++win_views_;
 }
@@ -449,8 +490,9 @@ void Initializer::initialize_rgbd(const hal::Frame& frame, const KeypointGrid& f
                static_cast<unsigned long long>(frame.seq), ni);
 }
 
-void Initializer::fill_segment_start(map::SegmentStart& st, int num_keypoints) const {
-  const auto un = static_cast<std::size_t>(num_keypoints);
+void Initializer::fill_segment_start(map::SegmentStart& st,
+                                     std::span<features::Keypoint> keypoints) const {
+  const std::size_t un = keypoints.size();
   st.num_views = start_.num_views;
   st.ref_seq = start_.ref_seq;
   st.ref_t_ns = start_.ref_t_ns;
@@ -470,6 +512,15 @@ void Initializer::fill_segment_start(map::SegmentStart& st, int num_keypoints) c
   std::copy_n(start_.points_w.begin(), np, st.points_w.begin());
   std::copy_n(start_.first_keypoint.begin(), np, st.first_keypoint.begin());
   std::copy_n(start_.second_keypoint.begin(), np, st.second_keypoint.begin());
+  if (opts_.align.enabled && start_.num_views == 2) {
+    for (int p = 0; p < np; ++p) {
+      const auto up = static_cast<std::size_t>(p);
+      const std::uint32_t k = start_.second_keypoint[up];
+      if (k >= un) continue;
+      keypoints[k].x = start_uv_[up].x();
+      keypoints[k].y = start_uv_[up].y();
+    }
+  }
 }
 
 }  // namespace mer::frontend

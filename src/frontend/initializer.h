@@ -11,6 +11,10 @@
 ///   the reference; one with too few matches, or one refused while the reference is older than
 ///   `max_reference_age_s` (`max_plane_hint_reference_age_s` once the reference holds plane
 ///   hints), becomes the new reference.
+///   With `tracking.init.align` each match then moves to where the reference keypoint's patch
+///   (its pixels in the reference's pyramid, at its level) aligns in the frame's, and a match
+///   whose alignment does not converge within `align.max_shift_px` of the detection is
+///   dropped (`drop_refused`): every frame measures the point the reference saw.
 ///   When the two-view reconstruction refuses an essential model's motion as uncertain (low
 ///   parallax: the translation direction is not sharp), the window decides
 ///   (`tracking.init.window`). The initializer keeps up to `max_views` of the frames tracked
@@ -52,11 +56,15 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <span>
 #include <vector>
+
+#include <opencv2/core.hpp>
 
 #include "core/pose.h"
 #include "core/sensor_mode.h"
 #include "features/keypoint.h"
+#include "features/patch_align.h"
 #include "frontend/focal_estimator.h"
 #include "frontend/keypoint_grid.h"
 #include "frontend/tracking_options.h"
@@ -114,7 +122,15 @@ struct InitDecision {
                                         ///< known orientation, whose world is the first one's
   double median_depth = 1.0;            ///< median depth of the points in the frame
   std::uint64_t ref_seq = 0;            ///< the world frame's sequence number (RGB-D: this frame)
+  // Diagnosis, monocular, sources with ground truth and depth (synthetic): the frame's matches
+  // to the reference checked against the true projection of the reference keypoint's point.
+  int gt_checked = 0;  ///< matches whose reference keypoint has a true depth
+  int gt_wrong = 0;    ///< of those, matched more than kGtWrongMatchPx from the true pixel
 };
+
+/// A match to the reference further than this from the true projection counts as wrong in
+/// the ground-truth audit (InitDecision::gt_wrong), px.
+inline constexpr double kGtWrongMatchPx = 2.0;
 
 /// Name of a decision's refusal for logs and summary.json `last_init_refusal`: for kTwoView the
 /// two-view reason (geometry::to_string(TwoViewRefusal): "ambiguous", ...), else
@@ -128,8 +144,9 @@ class Initializer {
   /// RANSAC) and `opts.rgbd_max_depth_step`.
   Initializer(const TrackingOptions& opts, SensorMode mode);
 
-  /// Sizes the buffers for frames of at most `max_keypoints` keypoints (setup: allocates).
-  void reserve(int max_keypoints);
+  /// Sizes the buffers for frames of at most `max_keypoints` keypoints of `width` x `height`
+  /// images (setup: allocates; a frame of another size makes the match alignment allocate).
+  void reserve(int max_keypoints, int width, int height);
 
   /// Decides on one frame: `features` holds its keypoints and descriptors (at most
   /// reserve's max_keypoints), `K` the intrinsics it is seen with. Two-view focal estimates go
@@ -138,9 +155,11 @@ class Initializer {
   InitDecision spin_once(const hal::Frame& frame, const KeypointGrid& features,
                          const geometry::Pinhole& K, FocalEstimator& focal);
 
-  /// Copies the last start into `st`, the segment start of a keyframe job of
-  /// `num_keypoints` keypoints (the start frame's). No allocation (st sized by reserve).
-  void fill_segment_start(map::SegmentStart& st, int num_keypoints) const;
+  /// Copies the last start into `st`, the segment start of a keyframe job whose
+  /// `keypoints` are the start frame's; with init.align the keypoints of the start's points
+  /// move to where their matches were aligned (where the points were triangulated from). No
+  /// allocation (st sized by reserve).
+  void fill_segment_start(map::SegmentStart& st, std::span<features::Keypoint> keypoints) const;
   /// Points of the last start.
   int start_points() const { return start_.num_points; }
 
@@ -165,11 +184,26 @@ class Initializer {
                      const Eigen::Matrix3d* R_c_w = nullptr);
   /// Matches the reference's keypoints in `features` (init_* and ref_prev_); returns the count.
   int match_reference(const KeypointGrid& features);
+  /// Pyramid of `gray` at the extractor's level sizes into `levels` (init.align).
+  void build_levels(const cv::Mat& gray, std::vector<cv::Mat>& levels);
+  /// The reference keypoints' patches (ref_patch_), from ref_levels_.
+  void sample_reference_patches();
+  /// Aligns the last matches to the reference patches (init_uv1_ and ref_prev_ move; refused
+  /// ones are dropped with drop_refused); returns the matches left.
+  int align_matches(const hal::Frame& frame);
+  /// Keypoint `kp`'s position in level `l` pixels, and back.
+  Eigen::Vector2f to_level(float x, float y, std::size_t l) const;
+  Eigen::Vector2d from_level(const Eigen::Vector2f& uv, std::size_t l) const;
+  /// Ground-truth audit of the last matches (d.gt_checked / gt_wrong) when the reference and
+  /// the frame carry a true pose and the reference a depth image.
+  void audit_matches(const hal::Frame& frame, const geometry::Pinhole& K, InitDecision& d) const;
   /// Adds a two-view focal estimate from the last matches to `focal` (d.K follows it).
   void focal_from_reference(int matches, FocalEstimator& focal, InitDecision& d);
   bool reference_too_old(std::int64_t t_ns) const;
   /// Keeps the frame's matches in the window if its turn has come (every win_stride_ frames).
-  void remember_frame(const hal::Frame& frame, const KeypointGrid& features);
+  void remember_frame(const hal::Frame& frame);
+  /// ref_match_ / kp_ref_ value of no match.
+  static constexpr int kNoMatch = -1;
   /// Motion candidates checked on the window, at most.
   static constexpr std::size_t kMaxWindowCandidates = 8;
   /// The window's choice among the motion candidates.
@@ -215,7 +249,19 @@ class Initializer {
   std::int64_t ref_t_ns_ = 0;
   Eigen::Matrix3d ref_R_ref_w_ = Eigen::Matrix3d::Identity();  // reference in its chain's world
   std::uint32_t chain_ = 0;                                    // the reference's chain
-  int ref_first_matches_ = 0;                 // matches of the first frame matched to the reference
+  int ref_first_matches_ = 0;  // matches of the first frame matched to the reference
+  // Match alignment (init.align): the pyramids of the reference and the frame, each reference
+  // keypoint's patch at its level, and where each match is now (level 0 px).
+  int num_levels_ = 1;
+  std::vector<cv::Mat> ref_levels_;
+  std::vector<cv::Mat> cur_levels_;
+  std::vector<double> level_to_x0_;
+  std::vector<double> level_to_y0_;
+  std::vector<features::WarpedPatch> ref_patch_;
+  std::vector<std::uint8_t> ref_patch_ok_;
+  bool ref_gt_ = false;                       // the reference has a true pose and depth (audit)
+  SE3d ref_T_w_c_gt_ = SE3d::Identity();      // its true pose
+  cv::Mat ref_depth_gt_;                      // its true depth, m (CV_32FC1)
   std::vector<Eigen::Vector3d> plane_hints_;  // plane normals of the reference's first planar tie
   geometry::TwoViewWorkspace two_view_ws_;    // reserved by reserve(): no allocation per frame
   geometry::TwoViewResult two_view_;          // the last two-view reconstruction
@@ -251,6 +297,7 @@ class Initializer {
   std::vector<Eigen::Vector3d> tri_x_;          // and their normalized rays
   // The last start: its keyframes' depths and points.
   map::SegmentStart start_;
+  std::vector<Eigen::Vector2f> start_uv_;  // per start point: its match in the start frame
 };
 
 }  // namespace mer::frontend

@@ -127,7 +127,7 @@ Status Tracker::init() {
   qt_keyframes_.reserve(kMaxRecentKeyframes);
   depth_scratch_.reserve(std::max(nk, static_cast<std::size_t>(opts_.focal.max_frames) + 1024));
   focal_.reserve();
-  initializer_.reserve(max_kp);
+  initializer_.reserve(max_kp, width_, height_);
   return Status::ok();
 }
 
@@ -537,7 +537,9 @@ void Tracker::fill_keyframe_job(const hal::Frame& frame, map::KeyframeJob& job) 
   if (start_to_queue_) {
     // The segment's start: its keyframes and points, as initialization made them.
     job.kind = map::KeyframeJobKind::kSegmentStart;
-    initializer_.fill_segment_start(job.start, n);
+    initializer_.fill_segment_start(
+        job.start,
+        std::span<features::Keypoint>(job.keypoints.data(), static_cast<std::size_t>(n)));
     job.has_sensor_depth = false;
     job.num_recent = 0;
     return;
@@ -583,6 +585,12 @@ void Tracker::initialize(const hal::Frame& frame, TrackingResult& r) {
   const InitDecision d = initializer_.spin_once(frame, grid_, K_, focal_);
   K_ = d.K;
   if (d.two_view_tried) ++counters_.init_attempts;
+  counters_.init_gt_matches += static_cast<std::uint64_t>(d.gt_checked);
+  counters_.init_gt_wrong += static_cast<std::uint64_t>(d.gt_wrong);
+  if (d.started) {
+    counters_.start_gt_matches += static_cast<std::uint64_t>(d.gt_checked);
+    counters_.start_gt_wrong += static_cast<std::uint64_t>(d.gt_wrong);
+  }
   if (!d.started) ++counters_.init_frame_refusals[static_cast<std::size_t>(d.refusal)];
   if (d.refusal == InitRefusal::kTwoView) {
     ++counters_.init_refusals;

@@ -87,6 +87,13 @@ struct TrackerCounters {
   std::uint64_t failed_starts = 0;          ///< starts lost within init.failed_start_window_s
                                             ///< with at most failed_start_max_keyframes
   std::uint64_t discarded_starts = 0;  ///< of these, segments discarded (discard_failed_starts)
+  /// Ground-truth audit of the initializer's matches (sources with true poses and depth):
+  /// matches checked on every frame matched to a reference, and those further than
+  /// kGtWrongMatchPx from the true pixel; then the same for the frames that started a segment.
+  std::uint64_t init_gt_matches = 0;
+  std::uint64_t init_gt_wrong = 0;
+  std::uint64_t start_gt_matches = 0;
+  std::uint64_t start_gt_wrong = 0;
   bool initialized = false;
   std::uint64_t tracked = 0;
   std::uint64_t lost = 0;

@@ -56,6 +56,35 @@ struct MatchOptions {
 /// reconstruction of the reference and the current frame refuses an essential model's motion
 /// as uncertain, the frames tracked in between decide it (a bundle adjustment of the window,
 /// geometry/window_ba.h).
+/// Photometric refinement of the initializer's matches (`tracking.init.align`).
+struct InitAlignOptions {
+  bool enabled = false;
+  bool drop_refused = true;
+  double max_rms = 255.0;
+  double max_shift_px = 1.5;
+
+  template <class V>
+  void visit(V& v) {
+    v.field("enabled", enabled,
+            "move each match to where the reference keypoint's patch (its pixels in the "
+            "reference frame, at the keypoint's pyramid level) aligns best in the frame, so "
+            "that every frame measures the same surface point the reference saw, not an "
+            "independent detection near it");
+    v.field("drop_refused", drop_refused,
+            "a match whose alignment is refused (residual, shift, no texture) is dropped; off: "
+            "its detection is kept");
+    v.field("max_rms", max_rms,
+            "an alignment whose RMS intensity residual (grey levels, brightness offset removed) "
+            "stays above this is refused (255: no residual gate; image noise, blur and the "
+            "change of viewpoint set the residual of a right match too)",
+            options::Range<double>{0.0, 255.0});
+    v.field("max_shift_px", max_shift_px,
+            "an alignment that moves the match farther than this from its detection (px of the "
+            "keypoint's pyramid level) is refused",
+            options::Range<double>{0.1, 10.0});
+  }
+};
+
 struct InitWindowOptions {
   bool enabled = true;
   bool decide_ties = false;
@@ -107,6 +136,7 @@ struct InitWindowOptions {
 struct InitOptions {
   geometry::TwoViewOptions two_view;
   InitWindowOptions window;
+  InitAlignOptions align;
   double search_radius_px = 100.0;
   int max_hamming = 60;
   double ratio = 0.9;
@@ -124,6 +154,7 @@ struct InitOptions {
   void visit(V& v) {
     v.section("two_view", two_view, "two-view reconstruction (monocular)");
     v.section("window", window, "monocular start over a window of frames");
+    v.section("align", align, "photometric refinement of the matches to the reference (monocular)");
     v.field("search_radius_px", search_radius_px,
             "window of the frame-to-frame search of the reference keypoints, px",
             options::Range<double>{1.0, 4000.0});

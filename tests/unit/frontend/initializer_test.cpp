@@ -10,6 +10,7 @@
 #include <memory>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -53,7 +54,7 @@ struct InitRig {
     focal = std::make_unique<FocalEstimator>(opts.focal, K.fx, false);
     focal->reserve();
     init = std::make_unique<Initializer>(opts, mode);
-    init->reserve(max_kp);
+    init->reserve(max_kp, cam_opts.width, cam_opts.height);
   }
 
   /// Renders frame `seq` at `T_w_c` (`noise_index`: the image noise's draw).
@@ -140,7 +141,8 @@ TEST(Initializer, RgbdStartsFromOneFrameWithDepth) {
   EXPECT_LT(d.median_depth, 5.0);
   map::SegmentStart st;
   st.reserve(static_cast<int>(rig.grid.capacity()));
-  rig.init->fill_segment_start(st, static_cast<int>(rig.grid.keypoints().size()));
+  std::vector<features::Keypoint> kps(rig.grid.keypoints().begin(), rig.grid.keypoints().end());
+  rig.init->fill_segment_start(st, kps);
   EXPECT_EQ(st.num_views, 1);
   EXPECT_EQ(st.num_points, d.num_points);
   EXPECT_EQ(st.ref_num_keypoints, 0);
@@ -185,7 +187,8 @@ TEST(Initializer, TwoViewStartMatchesTheTrueMotion) {
   // point in front of the reference camera.
   map::SegmentStart st;
   st.reserve(static_cast<int>(rig.grid.capacity()));
-  rig.init->fill_segment_start(st, static_cast<int>(rig.grid.keypoints().size()));
+  std::vector<features::Keypoint> kps(rig.grid.keypoints().begin(), rig.grid.keypoints().end());
+  rig.init->fill_segment_start(st, kps);
   EXPECT_EQ(st.num_views, 2);
   EXPECT_EQ(st.ref_seq, d.ref_seq);
   EXPECT_EQ(st.num_points, d.num_points);
@@ -224,7 +227,7 @@ TEST(Initializer, WindowSettlesAnUncertainMotionEarlierThanTwoViews) {
     InitRig rig(SensorMode::kMono, "hall_turn", hall);
     rig.opts.init.window.enabled = window;
     rig.init = std::make_unique<Initializer>(rig.opts, SensorMode::kMono);
-    rig.init->reserve(static_cast<int>(rig.grid.capacity()));
+    rig.init->reserve(static_cast<int>(rig.grid.capacity()), hall.width, hall.height);
     const auto pose = [&](int i) { return rig.cam->sample_at(i / hall.fps).T_w_c; };
     InitDecision d;
     int& first = start[window ? 1 : 0];
@@ -302,6 +305,43 @@ TEST(Initializer, PureRotationGivesOrientationAndNoMap) {
       oriented, kFrames, chains, std::sqrt(sum_sq / std::max(oriented, 1)), worst_deg);
   EXPECT_GE(oriented, kFrames / 2);
   EXPECT_LT(worst_deg, 0.5);
+}
+
+// The matches to the reference, checked against the rendered depth and the true poses: with
+// init.align each match is moved to where the reference keypoint's patch aligns, and the
+// ones whose patch does not align are dropped, so that few remain more than kGtWrongMatchPx
+// from the true pixel; without it a descriptor match lands on an independent detection near
+// the point, or on a look-alike corner.
+TEST(Initializer, AlignedMatchesMeasureTheReferencePoint) {
+  constexpr int kFrames = 12;
+  std::array<std::pair<long, long>, 2> audit{};  // (checked, wrong), align off then on
+  for (const bool align : {false, true}) {
+    InitRig rig(SensorMode::kMono);
+    rig.opts.init.align.enabled = align;
+    rig.opts.init.window.enabled = false;
+    rig.opts.init.two_view.min_parallax_deg = 90.0;  // never start: one reference, audited
+    rig.opts.init.two_view.confident_parallax_deg = 90.0;
+    rig.init = std::make_unique<Initializer>(rig.opts, SensorMode::kMono);
+    rig.init->reserve(rig.opts.extractor.num_features + rig.opts.extractor.num_levels,
+                      rig.cam_opts.width, rig.cam_opts.height);
+    auto& [checked, wrong] = audit[align ? 1 : 0];
+    for (int i = 0; i < kFrames; ++i) {
+      rig.render(static_cast<std::uint64_t>(i), corner_walk(i), static_cast<std::uint64_t>(i));
+      const InitDecision d = rig.decide();
+      ASSERT_FALSE(d.started);
+      checked += d.gt_checked;
+      wrong += d.gt_wrong;
+    }
+  }
+  const auto share = [](const std::pair<long, long>& a) {
+    return static_cast<double>(a.second) / static_cast<double>(std::max(a.first, 1L));
+  };
+  std::printf("matches more than %.0f px off: %ld of %ld unaligned, %ld of %ld aligned\n",
+              kGtWrongMatchPx, audit[0].second, audit[0].first, audit[1].second, audit[1].first);
+  ASSERT_GT(audit[0].first, 1000);
+  ASSERT_GT(audit[1].first, audit[0].first / 3);  // most matches survive the alignment
+  EXPECT_LT(share(audit[1]), 0.05);
+  EXPECT_LT(share(audit[1]), 0.25 * share(audit[0]));
 }
 
 // room_orbit's first second faces one wall: every pair is a planar tie. The camera moves
