@@ -52,10 +52,6 @@ struct MatchOptions {
   }
 };
 
-/// Monocular start over a window of frames (frontend/initializer.h): when the two-view
-/// reconstruction of the reference and the current frame refuses an essential model's motion
-/// as uncertain, the frames tracked in between decide it (a bundle adjustment of the window,
-/// geometry/window_ba.h).
 /// Photometric refinement of the initializer's matches (`tracking.init.align`).
 struct InitAlignOptions {
   bool enabled = false;
@@ -85,6 +81,10 @@ struct InitAlignOptions {
   }
 };
 
+/// Monocular start over a window of frames (frontend/initializer.h): when the two-view
+/// reconstruction of the reference and the current frame refuses an essential model's motion
+/// as uncertain, the frames tracked in between decide it (a bundle adjustment of the window,
+/// geometry/window_ba.h).
 struct InitWindowOptions {
   bool enabled = true;
   bool decide_ties = false;
