@@ -97,6 +97,17 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
 
 /// The first tracked frame's timestamp in a segment of `stats` that was not discarded (one
 /// read of frames.csv); `fallback` when there is none or the file cannot be read.
+/// Length of the ground-truth path between t_first and t_last, m.
+double path_length(const hal::Trajectory& gt, std::int64_t t_first, std::int64_t t_last) {
+  const auto& g = gt.poses;
+  double length = 0.0;
+  for (std::size_t i = 1; i < g.size(); ++i) {
+    if (g[i - 1].t_ns < t_first - kMaxDtNs || g[i].t_ns > t_last + kMaxDtNs) continue;
+    length += (g[i].T_w_c.translation() - g[i - 1].T_w_c.translation()).norm();
+  }
+  return length;
+}
+
 std::int64_t first_kept_stamp(const std::string& dir, const pipeline::PipelineStats& stats,
                               std::int64_t fallback) {
   std::vector<TrackedFrame> frames;
@@ -160,15 +171,23 @@ AccuracyReport evaluate_run(const std::string& dir, SensorMode sensor_mode,
   a.ate_mean_m = r.ate_mean_m;
   a.ate_median_m = r.ate_median_m;
   a.ate_max_m = r.ate_max_m;
-  // Path length of the ground truth between the first and last associated frame.
   const auto& g = gt.poses;
   const std::int64_t t_first = est.value().poses.front().t_ns;
   const std::int64_t t_last = est.value().poses.back().t_ns;
-  for (std::size_t i = 1; i < g.size(); ++i) {
-    if (g[i - 1].t_ns < t_first - kMaxDtNs || g[i].t_ns > t_last + kMaxDtNs) continue;
-    a.path_length_m += (g[i].T_w_c.translation() - g[i - 1].T_w_c.translation()).norm();
-  }
+  a.path_length_m = path_length(gt, t_first, t_last);
   a.ate_pct_of_path = a.path_length_m > 0.0 ? 100.0 * a.ate_rmse_m / a.path_length_m : 0.0;
+  // The first seconds after the start, aligned on their own.
+  const auto t_start_end = t_first + static_cast<std::int64_t>(kStartWindowS * 1e9);
+  std::erase_if(est.value().poses, [&](const StampedPose& p) { return p.t_ns > t_start_end; });
+  const auto start_pairs = eval::associate(gt, est.value(), kMaxDtNs);
+  if (start_pairs.size() >= kMinPairs) {
+    const eval::EvalResult h = eval::evaluate(gt, est.value(), start_pairs, al);
+    a.start_pairs = h.pairs;
+    a.start_ate_rmse_m = h.ate_rmse_m;
+    a.start_path_length_m = path_length(gt, t_first, est.value().poses.back().t_ns);
+    a.start_ate_pct_of_path =
+        a.start_path_length_m > 0.0 ? 100.0 * a.start_ate_rmse_m / a.start_path_length_m : 0.0;
+  }
   // Tracked fraction from the initialization on: frames at or after the first tracked one
   // of the run, in any segment (`tracked` counts them all; trajectory.txt may hold a
   // segment that started later).

@@ -32,7 +32,16 @@ struct AccuracyReport {
   double path_length_m = 0.0;           ///< ground-truth path length over the associated frames
   double ate_pct_of_path = 0.0;         ///< 100 * ATE RMSE / path length
   double tracked_after_init_pct = 0.0;  ///< tracked frames / frames from initialization on
+  /// The first kStartWindowS of the scored frames (from the start of the trajectory's segment),
+  /// aligned on their own: a fast start must not be a bad one (pairs 0: fewer than 3).
+  std::size_t start_pairs = 0;
+  double start_ate_rmse_m = 0.0;
+  double start_path_length_m = 0.0;
+  double start_ate_pct_of_path = 0.0;
 };
+
+/// Span after the first scored frame of AccuracyReport's start figures, s.
+inline constexpr double kStartWindowS = 5.0;
 
 /// Scores `dir`/`trajectory` (trajectory.txt by default) against `dir`/groundtruth.txt.
 /// With `only_segment` >= 0, only the frames frames.csv says were tracked in that map

@@ -55,7 +55,11 @@ void write_accuracy(std::ostream& j, const char* key, const AccuracyReport& a) {
       << ", \"ate_mean_m\": " << num(a.ate_mean_m) << ", \"ate_median_m\": " << num(a.ate_median_m)
       << ", \"ate_max_m\": " << num(a.ate_max_m) << ", \"path_length_m\": " << num(a.path_length_m)
       << ", \"ate_pct_of_path\": " << num(a.ate_pct_of_path)
-      << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct) << "},\n";
+      << ", \"tracked_after_init_pct\": " << num(a.tracked_after_init_pct)
+      << ", \"first_5s_pairs\": " << a.start_pairs
+      << ", \"first_5s_ate_rmse_m\": " << num(a.start_ate_rmse_m)
+      << ", \"first_5s_path_length_m\": " << num(a.start_path_length_m)
+      << ", \"first_5s_ate_pct_of_path\": " << num(a.start_ate_pct_of_path) << "},\n";
   } else {
     j << "  \"" << key << "\": {\"note\": " << json_string(a.note) << "},\n";
   }
@@ -456,6 +460,12 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
        << a.ate_rmse_m << " m = " << std::setprecision(3) << a.ate_pct_of_path << " % of "
        << std::setprecision(2) << a.path_length_m << " m path; tracked " << std::setprecision(1)
        << a.tracked_after_init_pct << " % after init\n";
+    if (a.start_pairs > 0) {
+      os << "  ATE of the first " << std::setprecision(2) << kStartWindowS << " s ("
+         << a.start_pairs << " poses, aligned on their own): rmse " << std::setprecision(4)
+         << a.start_ate_rmse_m << " m = " << std::setprecision(3) << a.start_ate_pct_of_path
+         << " % of " << std::setprecision(2) << a.start_path_length_m << " m path\n";
+    }
   } else {
     os << "  ATE: " << info.accuracy.note << "\n";
   }
