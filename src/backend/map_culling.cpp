@@ -91,7 +91,9 @@ bool MapCuller::removable(map::KeyframeId kf) const {
 
 bool MapCuller::parent_of(map::KeyframeId kf, CulledKeyframe& rec) {
   if (lineage_.empty()) return false;
-  // The live keyframe sharing most points with kf (else the newest one) carries it on.
+  // The live keyframe sharing most points with kf (else the newest one) carries it on; it
+  // must be of kf's segment (another segment's pose is in another world frame).
+  const std::uint16_t segment = map_.keyframe_segment(kf);
   map::KeyframeId parent = map::kNoId;
   const std::size_t n = map_.covisible_keyframes(kf, parent_covis_);
   for (std::size_t i = 0; i < n && parent == map::kNoId; ++i) {
@@ -102,12 +104,12 @@ bool MapCuller::parent_of(map::KeyframeId kf, CulledKeyframe& rec) {
   if (parent == map::kNoId) parent = map_.newest_keyframe();
   SE3d T_w_kf;
   SE3d T_w_parent;
-  if (parent == map::kNoId || parent == kf || !map_.keyframe_pose(kf, T_w_kf) ||
-      !map_.keyframe_pose(parent, T_w_parent)) {
+  if (parent == map::kNoId || parent == kf || map_.keyframe_segment(parent) != segment ||
+      !map_.keyframe_pose(kf, T_w_kf) || !map_.keyframe_pose(parent, T_w_parent)) {
     return false;
   }
   rec = CulledKeyframe{map_.keyframe_t_ns(kf), map_.keyframe_t_ns(parent),
-                       T_w_parent.inverse() * T_w_kf};
+                       T_w_parent.inverse() * T_w_kf, segment};
   return true;
 }
 

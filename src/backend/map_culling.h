@@ -141,12 +141,15 @@ struct CullingTotals {
   double max_ms = 0.0;
 };
 
-/// A removed keyframe's place relative to the live keyframe that shared most points with it
-/// when it was removed: its final pose is the parent's final pose times T_parent_kf.
+/// A removed keyframe's place relative to the live keyframe of its segment that shared most
+/// points with it when it was removed: its final pose is the parent's final pose times
+/// T_parent_kf, whose translation is in the units of `segment` at that time (a later merge
+/// rescales it: final_trajectory.h).
 struct CulledKeyframe {
   std::int64_t t_ns = 0;         ///< the removed keyframe's timestamp
   std::int64_t parent_t_ns = 0;  ///< the parent's timestamp
   SE3d T_parent_kf = SE3d::Identity();
+  std::uint16_t segment = 0;  ///< the map segment both were in when it was removed
 };
 
 /// The culling stage (a map writer: see spin_once).

@@ -6,20 +6,28 @@
 namespace mer::pipeline {
 
 std::vector<FinalKeyframePose> resolve_keyframe_poses(
-    std::span<const StampedPose> live, std::span<const backend::CulledKeyframe> lineage) {
+    std::span<const StampedPose> live, std::span<const backend::CulledKeyframe> lineage,
+    std::span<const double> segment_scale) {
   std::unordered_map<std::int64_t, FinalKeyframePose> known;
   known.reserve(live.size() + lineage.size());
   for (const StampedPose& p : live) known.emplace(p.t_ns, FinalKeyframePose{p.t_ns, p.T_w_c});
+  // A record's offset in the units of `live`: 0 when its segment did not join it.
+  auto scale_of = [&](const backend::CulledKeyframe& c) {
+    if (segment_scale.empty()) return 1.0;
+    return c.segment < segment_scale.size() ? segment_scale[c.segment] : 0.0;
+  };
   std::unordered_map<std::int64_t, const backend::CulledKeyframe*> parent_of;
   parent_of.reserve(lineage.size());
-  for (const backend::CulledKeyframe& c : lineage) parent_of.emplace(c.t_ns, &c);
+  for (const backend::CulledKeyframe& c : lineage) {
+    if (scale_of(c) > 0.0) parent_of.emplace(c.t_ns, &c);
+  }
 
   // Walk each removed keyframe up its lineage to a known pose, then compose back down.
   // A chain is at most lineage.size() long (each record names a keyframe that was live
   // when its child was removed, so there is no cycle; the bound guards a corrupt input).
   std::vector<const backend::CulledKeyframe*> chain;
   for (const backend::CulledKeyframe& c : lineage) {
-    if (known.contains(c.t_ns)) continue;
+    if (known.contains(c.t_ns) || !(scale_of(c) > 0.0)) continue;
     chain.clear();
     const backend::CulledKeyframe* at = &c;
     while (at != nullptr && !known.contains(at->parent_t_ns) && chain.size() < lineage.size()) {
@@ -31,8 +39,9 @@ std::vector<FinalKeyframePose> resolve_keyframe_poses(
     chain.push_back(at);
     for (auto it = chain.rbegin(); it != chain.rend(); ++it) {
       const FinalKeyframePose& parent = known.at((*it)->parent_t_ns);
-      known.emplace((*it)->t_ns,
-                    FinalKeyframePose{(*it)->t_ns, parent.T_w_c * (*it)->T_parent_kf, true});
+      SE3d T_parent_kf = (*it)->T_parent_kf;
+      T_parent_kf.translation() *= scale_of(**it);
+      known.emplace((*it)->t_ns, FinalKeyframePose{(*it)->t_ns, parent.T_w_c * T_parent_kf, true});
     }
   }
   std::vector<FinalKeyframePose> out;

@@ -14,7 +14,9 @@
 ///
 /// Keyframes removed by culling are followed through their lineage: their pose relative to
 /// the live keyframe that shared most points with them when they were removed
-/// (backend::CulledKeyframe), composed up to a keyframe still in the map.
+/// (backend::CulledKeyframe), composed up to a keyframe still in the map. That offset is in
+/// the units of its segment then; a segment that later merged into the main one moved by a
+/// similarity, so its offsets are scaled by the merges' scale.
 ///
 /// A frame whose keyframe cannot be resolved (tracked before any keyframe existed, or its
 /// lineage record forgotten: culling.lineage_capacity) is moved by the correction of the
@@ -60,8 +62,11 @@ struct FinalTrajectoryStats {
 
 /// Final poses of the live keyframes (`live`, any order) and of the removed keyframes that
 /// `lineage` connects to them, sorted by time. A timestamp appears once (live wins).
+/// `segment_scale[s]` takes segment s's units into those of `live` (segment_scales_into; 0: s
+/// did not join it, its records are not followed); empty: every record is in those units.
 std::vector<FinalKeyframePose> resolve_keyframe_poses(
-    std::span<const StampedPose> live, std::span<const backend::CulledKeyframe> lineage);
+    std::span<const StampedPose> live, std::span<const backend::CulledKeyframe> lineage,
+    std::span<const double> segment_scale = {});
 
 /// Re-anchors `frames` (in time order) to `keyframes` (sorted by time, as returned by
 /// resolve_keyframe_poses); one output pose per frame.

@@ -245,7 +245,8 @@ Pipeline::FinishedMap Pipeline::finished_map() {
 std::vector<FinalKeyframePose> Pipeline::final_keyframe_poses() const {
   // The main segment's: trajectory.txt's world frame (the other segments have their own).
   if (map_->segment_discarded(main_segment_)) return {};  // no segment kept
-  return resolve_keyframe_poses(map_->live_keyframe_poses(main_segment_), culler_->lineage());
+  return resolve_keyframe_poses(map_->live_keyframe_poses(main_segment_), culler_->lineage(),
+                                segment_scales_into_main());
 }
 
 Status Pipeline::write_final_keyframes() const {

@@ -74,8 +74,9 @@ map::PointId add_point(map::Map& m, const std::vector<map::KeyframeId>& views, s
 
 // Eight keyframes: points 0-9 seen by k0..k4 and k7 (returned), points 10-19 by k2 and k6
 // only. With redundancy_options(), one pass removes k1, k3 and k4.
-std::vector<map::PointId> redundant_map(map::Map& m, std::vector<map::KeyframeId>& k) {
-  for (int i = 0; i < 8; ++i) k.push_back(add_kf(m));
+std::vector<map::PointId> redundant_map(map::Map& m, std::vector<map::KeyframeId>& k,
+                                        std::uint16_t segment = 0) {
+  for (int i = 0; i < 8; ++i) k.push_back(add_kf(m, 0, segment));
   std::vector<map::PointId> shared;
   for (std::uint32_t i = 0; i < 10; ++i)
     shared.push_back(add_point(m, {k[0], k[1], k[2], k[3], k[4], k[7]}, i));
@@ -125,6 +126,40 @@ TEST(MapCulling, RedundantKeyframesAreRemovedButNotTheAnchorNorTheNewest) {
   // A second pass finds nothing more to remove.
   EXPECT_EQ(c.spin_once(k[7]).culled_keyframes, 0);
   EXPECT_EQ(c.lineage().size(), 3U);
+}
+
+// A lineage record says the segment its offset was measured in (a later merge rescales it),
+// and its parent is of that segment: the newest keyframe, another segment's, is not taken
+// when the removed keyframe has no live covisible one.
+TEST(MapCulling, LineageStaysInTheRemovedKeyframesSegment) {
+  map::Map m(map_options(16, 200));
+  std::vector<map::KeyframeId> k;
+  (void)redundant_map(m, k, 1);
+  MapCuller c(redundancy_options(), m);
+  EXPECT_EQ(c.spin_once(k[7]).culled_keyframes, 3);
+  ASSERT_EQ(c.lineage().size(), 3U);
+  for (const CulledKeyframe& rec : c.lineage()) EXPECT_EQ(rec.segment, 1U) << rec.t_ns;
+
+  // Two keyframes of segment 0 (the first the anchor), then two of segment 1, no points:
+  // at capacity the middle two go. Each has no covisible keyframe, so the newest keyframe
+  // would carry it on; it is of segment 1, so only segment 1's removed keyframe gets a record.
+  map::Map m2(map_options(4, 200));
+  CullingOptions o = rules_off();
+  o.capacity_fraction = 0.5;  // 2 of 4 keyframes
+  o.keep_newest_keyframes = 1;
+  const map::KeyframeId a0 = add_kf(m2, 0, 0);
+  const map::KeyframeId a1 = add_kf(m2, 0, 0);
+  const map::KeyframeId b0 = add_kf(m2, 0, 1);
+  const map::KeyframeId b1 = add_kf(m2, 0, 1);
+  MapCuller c2(o, m2);
+  EXPECT_EQ(c2.spin_once(b1).capacity_keyframes, 2);
+  EXPECT_TRUE(m2.keyframe_is_live(a0));
+  EXPECT_FALSE(m2.keyframe_is_live(a1));
+  EXPECT_FALSE(m2.keyframe_is_live(b0));
+  ASSERT_EQ(c2.lineage().size(), 1U);
+  EXPECT_EQ(c2.lineage()[0].t_ns, 2000);         // b0
+  EXPECT_EQ(c2.lineage()[0].parent_t_ns, 3000);  // b1
+  EXPECT_EQ(c2.lineage()[0].segment, 1U);
 }
 
 TEST(MapCulling, LineageIsABoundedRing) {

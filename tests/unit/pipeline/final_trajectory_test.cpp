@@ -41,6 +41,24 @@ TEST(FinalTrajectory, LineageChainsResolveToLiveKeyframes) {
   expect_near(kfs[2].T_w_c, T_w_a * T_a_b * T_b_c);
 }
 
+// A record made in a segment that later merged into the main one at scale 0.5 has its offset
+// halved; a record of a segment that never joined it is not followed.
+TEST(FinalTrajectory, LineageOffsetsTakeTheirSegmentsMergeScale) {
+  const SE3d T_w_a = pose(0.3, 1.0, 2.0, 0.5);
+  const std::vector<StampedPose> live{{100, T_w_a}};
+  const SE3d T_a_b = pose(0.1, 0.4, -0.2, 0.0);
+  std::vector<backend::CulledKeyframe> lineage{{200, 100, T_a_b, 1}, {300, 100, T_a_b, 2}};
+  const std::vector<double> scale{1.0, 0.5, 0.0};
+  const std::vector<FinalKeyframePose> kfs = resolve_keyframe_poses(live, lineage, scale);
+  ASSERT_EQ(kfs.size(), 2U);
+  EXPECT_EQ(kfs[1].t_ns, 200);
+  SE3d T_a_b_half = T_a_b;
+  T_a_b_half.translation() *= 0.5;
+  expect_near(kfs[1].T_w_c, T_w_a * T_a_b_half);
+  // Without scales every record is taken as in the main segment's units.
+  EXPECT_EQ(resolve_keyframe_poses(live, lineage).size(), 3U);
+}
+
 // A frame lands where its keyframe's final pose puts it; a frame without a resolvable
 // keyframe moves with the previous frame's correction, and a frame before any anchored one
 // stays as tracked.
