@@ -137,7 +137,9 @@ void write_segments(std::ostream& j, const pipeline::PipelineStats& st, const Ru
       << ", \"main\": " << (g.main ? "true" : "false")
       << ", \"discarded\": " << (g.discarded ? "true" : "false")
       << ", \"merged_into\": " << g.merged_into;
-    if (g.merged_into >= 0) j << ", \"merged_at_seq\": " << g.merged_at_seq;
+    if (g.merged_into >= 0) {
+      j << ", \"merged_at_seq\": " << g.merged_at_seq << ", \"fit_keyframes\": " << g.fit_keyframes;
+    }
     if (i < info.accuracy_segments.size() && info.accuracy_segments[i].available) {
       const AccuracyReport& a = info.accuracy_segments[i];
       j << ", \"ate_rmse_m\": " << num(a.ate_rmse_m)

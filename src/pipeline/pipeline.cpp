@@ -218,7 +218,15 @@ Status Pipeline::join_segments() {
     g.discarded = segment_stats_[i].discarded;
     segment_outputs_.push_back(g);
   }
-  return join_segment_files(output_dir_, merge_records(), segment_outputs_, main_segment_);
+  // Every stage has stopped: the map is read by nobody else.
+  const FinalKeyframesOf finals = [this](std::uint16_t main) {
+    std::vector<double> scales = segment_scales_into(merge_records(), main, segment_stats_.size());
+    for (std::size_t i = 0; i < scales.size(); ++i) {
+      if (segment_stats_[i].discarded) scales[i] = 0.0;
+    }
+    return resolve_keyframe_poses(map_->live_keyframe_poses(main), culler_->lineage(), scales);
+  };
+  return join_segment_files(output_dir_, merge_records(), segment_outputs_, main_segment_, finals);
 }
 
 std::vector<SegmentMergeRecord> Pipeline::merge_records() const {
@@ -307,6 +315,7 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
       g.trajectory = o.trajectory;
       g.merged_into = o.merged_into;
       g.merged_at_seq = o.merged_at_seq;
+      g.fit_keyframes = o.fit_keyframes;
     }
     g.main = !g.discarded && g.id == main_segment_;
     stats_.segments.push_back(g);

@@ -135,9 +135,11 @@ struct SegmentStats {
                                     ///< trajectory.txt for the main segment
   int merged_into = -1;             ///< the segment it merged into (finally), -1: never merged
   std::uint64_t merged_at_seq = 0;  ///< frame of its merge
-  bool main = false;                ///< the main segment (trajectory.txt)
-  bool discarded = false;           ///< a failed start (tracking.init.discard_failed_starts):
-                                    ///< its `frames` count as lost, it has no trajectory file
+  int fit_keyframes = 0;   ///< merged: keyframes its frames' similarity into the main segment was
+                           ///< fitted to (0: the merges' similarities; segment_outputs.h)
+  bool main = false;       ///< the main segment (trajectory.txt)
+  bool discarded = false;  ///< a failed start (tracking.init.discard_failed_starts):
+                           ///< its `frames` count as lost, it has no trajectory file
 };
 
 /// What relocalization did over a run (summary.json `relocalization`).

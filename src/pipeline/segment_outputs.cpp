@@ -67,6 +67,59 @@ Status write_lines(const std::filesystem::path& path, const std::vector<PoseLine
   return Status::ok();
 }
 
+/// How far `S` takes the keyframes `live` (a segment's, as tracked) from their `final` poses
+/// (same order): mean squared position error and mean rotation error, rad.
+struct FitError {
+  double position2 = 0.0;
+  double rotation = 0.0;
+};
+FitError fit_error(const geometry::Sim3d& S, std::span<const SE3d> live,
+                   std::span<const SE3d> final) {
+  FitError e;
+  for (std::size_t i = 0; i < live.size(); ++i) {
+    const SE3d T = geometry::apply_to_pose(S, live[i]);
+    e.position2 += (T.translation() - final[i].translation()).squaredNorm();
+    e.rotation += Eigen::AngleAxisd(T.linear().transpose() * final[i].linear()).angle();
+  }
+  const auto n = static_cast<double>(std::max<std::size_t>(live.size(), 1));
+  e.position2 /= n;
+  e.rotation /= n;
+  return e;
+}
+
+/// The similarity taking the keyframes `live` onto `final` (same order, at least one): its
+/// rotation the chordal mean of the keyframes' rotations from one to the other (the
+/// orientations fix it even when the keyframes lie on a line), then scale and translation by
+/// least squares on the positions.
+geometry::Sim3d fit_similarity(std::span<const SE3d> live, std::span<const SE3d> final) {
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d p_mean = Eigen::Vector3d::Zero();
+  Eigen::Vector3d q_mean = Eigen::Vector3d::Zero();
+  for (std::size_t i = 0; i < live.size(); ++i) {
+    sum += final[i].linear() * live[i].linear().transpose();
+    p_mean += live[i].translation();
+    q_mean += final[i].translation();
+  }
+  const auto n = static_cast<double>(live.size());
+  p_mean /= n;
+  q_mean /= n;
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(sum, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
+  geometry::Sim3d S;
+  S.R = svd.matrixU() * D * svd.matrixV().transpose();
+  double num = 0.0;
+  double den = 0.0;
+  for (std::size_t i = 0; i < live.size(); ++i) {
+    const Eigen::Vector3d p = S.R * (live[i].translation() - p_mean);
+    num += p.dot(final[i].translation() - q_mean);
+    den += p.squaredNorm();
+  }
+  S.s = den > 0.0 && num > 0.0 ? num / den : 1.0;
+  S.t = q_mean - S.s * S.R * p_mean;
+  return S;
+}
+
 }  // namespace
 
 std::string segment_file_name(std::uint16_t segment, bool keyframes) {
@@ -92,7 +145,8 @@ std::vector<double> segment_scales_into(std::span<const SegmentMergeRecord> merg
 }
 
 Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRecord> merges,
-                          std::vector<SegmentOutput>& segments, std::uint16_t& main) {
+                          std::vector<SegmentOutput>& segments, std::uint16_t& main,
+                          const FinalKeyframesOf& final_keyframes) {
   main = 0;
   for (SegmentOutput& g : segments) g.trajectory = segment_file_name(g.id, false);
   if (segments.empty()) return Status::ok();
@@ -142,6 +196,44 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
     if (Status s = read_lines(d / segment_file_name(g.id, false), traj[g.id]); !s.is_ok()) return s;
     if (Status s = read_lines(d / segment_file_name(g.id, true), kfs[g.id]); !s.is_ok()) return s;
   }
+  // A segment that ended in the main one moves there by a similarity fitted to its
+  // keyframes' final poses when that is no worse, on their positions and their orientations,
+  // than the merges' similarities composed (it then moves straight into the main segment).
+  std::map<std::uint16_t, geometry::Sim3d> fitted;
+  std::map<std::uint16_t, int> fit_keyframes;
+  if (final_keyframes) {
+    const std::vector<FinalKeyframePose> finals = final_keyframes(main);
+    std::vector<SE3d> live;
+    std::vector<SE3d> final;
+    for (const auto& [id, into] : merged_into) {
+      if (into != main || discarded(id)) continue;
+      live.clear();
+      final.clear();
+      for (const PoseLine& k : kfs[id]) {
+        const auto it =
+            std::lower_bound(finals.begin(), finals.end(), k.t_ns,
+                             [](const FinalKeyframePose& f, std::int64_t t) { return f.t_ns < t; });
+        if (it == finals.end() || it->t_ns != k.t_ns) continue;
+        live.push_back(k.T_w_c);
+        final.push_back(it->T_w_c);
+      }
+      if (live.size() < kMinFitKeyframes) continue;
+      geometry::Sim3d chain;  // the merges' similarities from `id` to the main segment
+      std::uint16_t at = id;
+      for (const SegmentMergeRecord& m : merges) {
+        if (m.from != at || discarded(m.into)) continue;
+        chain = m.sim_into_from * chain;
+        at = m.into;
+      }
+      const geometry::Sim3d fit = fit_similarity(live, final);
+      const FitError e_fit = fit_error(fit, live, final);
+      const FitError e_chain = fit_error(chain, live, final);
+      if (e_fit.position2 <= e_chain.position2 && e_fit.rotation <= e_chain.rotation) {
+        fitted[id] = fit;
+        fit_keyframes[id] = static_cast<int>(live.size());
+      }
+    }
+  }
   auto join = [](std::vector<PoseLine>& from, std::vector<PoseLine>& into,
                  const geometry::Sim3d& S) {
     for (PoseLine& p : from) {
@@ -152,6 +244,10 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
     std::stable_sort(into.begin(), into.end(),
                      [](const PoseLine& a, const PoseLine& b) { return a.t_ns < b.t_ns; });
   };
+  for (const auto& [id, S] : fitted) {
+    join(traj[id], traj[main], S);
+    join(kfs[id], kfs[main], S);
+  }
   for (const SegmentMergeRecord& m : merges) {
     if (discarded(m.from) || discarded(m.into)) continue;
     join(traj[m.from], traj[m.into], m.sim_into_from);
@@ -168,6 +264,9 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
     } else if (const auto it = merged_into.find(g.id); it != merged_into.end()) {
       g.merged_into = it->second;
       g.merged_at_seq = merged_at[g.id];
+      if (const auto f = fit_keyframes.find(g.id); f != fit_keyframes.end()) {
+        g.fit_keyframes = f->second;
+      }
       g.trajectory = name(static_cast<std::uint16_t>(it->second), false);
     } else {
       g.trajectory = name(g.id, false);

@@ -115,6 +115,57 @@ TEST_F(SegmentOutputs, MergedSegmentsMoveIntoTheOlderFrameAndJoinItsFile) {
   EXPECT_EQ(segs[3].trajectory, "trajectory_segment_3.txt");
 }
 
+// Segment 1's keyframes sit, in the final map, where similarity S puts them; the merge's
+// own similarity (the loop point's) is off by 10 % in scale and a few degrees. Its frames
+// move by the similarity fitted to the keyframes (S), not by the merge's; without the final
+// keyframes, or with fewer than kMinFitKeyframes of them, by the merge's.
+TEST_F(SegmentOutputs, MergedFramesMoveByTheSimilarityFittedToTheirKeyframes) {
+  const SE3d a0 = pose(0.0, 0.0, 0.0, 0.0);
+  std::vector<StampedPose> kf1;
+  for (int i = 0; i < 5; ++i) {
+    kf1.push_back({(3 + i) * kS, pose(0.1 * i, 0.5 * i, 0.2 * i * i, 0.1)});
+  }
+  const SE3d frame1 = pose(0.35, 1.1, 0.6, 0.15);
+  const geometry::Sim3d S{Eigen::Matrix3d(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ())),
+                          Eigen::Vector3d(1.0, -2.0, 0.5), 0.6};
+  geometry::Sim3d S_merge = S;
+  S_merge.s *= 1.1;
+  S_merge.R = Eigen::AngleAxisd(0.05, Eigen::Vector3d::UnitX()).toRotationMatrix() * S.R;
+  const std::vector<SegmentMergeRecord> merges{{1, 0, 80, S_merge}};
+  std::vector<FinalKeyframePose> finals{{1 * kS, a0, false}};
+  for (const StampedPose& k : kf1) finals.push_back({k.t_ns, geometry::apply_to_pose(S, k.T_w_c)});
+  auto prepare = [&] {
+    write("trajectory.txt", {{1 * kS, a0}, {2 * kS, a0}, {9 * kS, a0}});
+    write("keyframes.txt", {{1 * kS, a0}});
+    write("trajectory_segment_1.txt", {{3 * kS, kf1[0].T_w_c}, {5 * kS + 7, frame1}});
+    write("keyframes_segment_1.txt", kf1);
+  };
+  auto frame1_after = [&](const FinalKeyframesOf& of, int& fitted) {
+    prepare();
+    std::vector<SegmentOutput> segs{seg(0, 3), seg(1, 2)};
+    std::uint16_t main = 99;
+    const Status st = join_segment_files(dir_.string(), merges, segs, main, of);
+    EXPECT_TRUE(st.is_ok()) << st.message();
+    EXPECT_EQ(main, 0);
+    fitted = segs[1].fit_keyframes;
+    const std::vector<StampedPose> t = read("trajectory.txt");
+    EXPECT_EQ(t.size(), 5U);
+    return t.size() == 5U ? t[3].T_w_c : SE3d::Identity();
+  };
+  int fitted = -1;
+  const SE3d by_fit =
+      frame1_after([&](std::uint16_t m) { return m == 0 ? finals : decltype(finals){}; }, fitted);
+  EXPECT_EQ(fitted, 5);
+  EXPECT_LT((by_fit.matrix() - geometry::apply_to_pose(S, frame1).matrix()).norm(), 1e-8);
+  const SE3d by_merge = frame1_after({}, fitted);
+  EXPECT_EQ(fitted, 0);
+  EXPECT_LT((by_merge.matrix() - geometry::apply_to_pose(S_merge, frame1).matrix()).norm(), 1e-8);
+  const std::vector<FinalKeyframePose> few(finals.begin(), finals.begin() + 3);
+  const SE3d by_few = frame1_after([&](std::uint16_t) { return few; }, fitted);
+  EXPECT_EQ(fitted, 0);
+  EXPECT_LT((by_few.matrix() - by_merge.matrix()).norm(), 1e-8);
+}
+
 // Without a merge the segment with the most frames is the main one (the corridor case: a
 // one-frame segment 0, then a long one): trajectory.txt holds it, segment 0 moves aside.
 TEST_F(SegmentOutputs, WithoutMergeTheLargestSegmentIsTrajectoryTxt) {
