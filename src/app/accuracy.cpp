@@ -95,8 +95,6 @@ bool segment_frame_stamps(const std::string& dir, int segment, std::vector<std::
   return true;
 }
 
-/// The first tracked frame's timestamp in a segment of `stats` that was not discarded (one
-/// read of frames.csv); `fallback` when there is none or the file cannot be read.
 /// Length of the ground-truth path between t_first and t_last, m.
 double path_length(const hal::Trajectory& gt, std::int64_t t_first, std::int64_t t_last) {
   const auto& g = gt.poses;
@@ -108,6 +106,8 @@ double path_length(const hal::Trajectory& gt, std::int64_t t_first, std::int64_t
   return length;
 }
 
+/// The first tracked frame's timestamp in a segment of `stats` that was not discarded (one
+/// read of frames.csv); `fallback` when there is none or the file cannot be read.
 std::int64_t first_kept_stamp(const std::string& dir, const pipeline::PipelineStats& stats,
                               std::int64_t fallback) {
   std::vector<TrackedFrame> frames;

@@ -220,11 +220,8 @@ Status Pipeline::join_segments() {
   }
   // Every stage has stopped: the map is read by nobody else.
   const FinalKeyframesOf finals = [this](std::uint16_t main) {
-    std::vector<double> scales = segment_scales_into(merge_records(), main, segment_stats_.size());
-    for (std::size_t i = 0; i < scales.size(); ++i) {
-      if (segment_stats_[i].discarded) scales[i] = 0.0;
-    }
-    return resolve_keyframe_poses(map_->live_keyframe_poses(main), culler_->lineage(), scales);
+    return resolve_keyframe_poses(map_->live_keyframe_poses(main), culler_->lineage(),
+                                  kept_segment_scales_into(main));
   };
   return join_segment_files(output_dir_, merge_records(), segment_outputs_, main_segment_, finals);
 }
@@ -238,8 +235,11 @@ std::vector<SegmentMergeRecord> Pipeline::merge_records() const {
 }
 
 std::vector<double> Pipeline::segment_scales_into_main() const {
-  std::vector<double> scales =
-      segment_scales_into(merge_records(), main_segment_, segment_stats_.size());
+  return kept_segment_scales_into(main_segment_);
+}
+
+std::vector<double> Pipeline::kept_segment_scales_into(std::uint16_t main) const {
+  std::vector<double> scales = segment_scales_into(merge_records(), main, segment_stats_.size());
   for (std::size_t i = 0; i < scales.size(); ++i) {
     if (segment_stats_[i].discarded) scales[i] = 0.0;  // its frames are lost
   }

@@ -269,6 +269,9 @@ class Pipeline {
   /// final map (after local BA and the final BA), in time order.
   Status write_final_keyframes() const;
   std::vector<SegmentMergeRecord> merge_records() const;
+  /// Per segment id, the scale from its units into segment `main`'s along the merges (0 for a
+  /// segment that did not join it and for a discarded one).
+  std::vector<double> kept_segment_scales_into(std::uint16_t main) const;
   /// keyframes.csv: one line per keyframe created (keyframe thread only; closed by run()).
   Status open_keyframes_csv();
   void write_keyframe_row(const map::KeyframeJob& job, const depth::KeyframeBuildReport& rep);
