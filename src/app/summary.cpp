@@ -325,6 +325,7 @@ void write_backend_loop_relocalization(std::ostream& j, const pipeline::Pipeline
     << ", \"candidates_checked\": " << lp.candidates_checked
     << ", \"queue_full\": " << st.loop_queue_full << ", \"loops_closed\": " << lp.loops_closed
     << ", \"segments_merged\": " << lp.segments_merged
+    << ", \"merges_by_relocalization\": " << lp.merges_by_relocalization
     << ", \"merged_points\": " << lp.merged_points << ", \"max_ms\": " << num(lp.max_ms)
     << ", \"max_full_ba_ms\": " << num(lp.max_full_ba_ms)
     << ", \"last_loop_seq\": " << lp.last_loop.loop_seq
@@ -336,7 +337,8 @@ void write_backend_loop_relocalization(std::ostream& j, const pipeline::Pipeline
     << ", \"few_inliers\": " << lp.rejected.few_inliers << ", \"drift\": " << lp.rejected.drift
     << ", \"not_found\": " << lp.rejected.not_found
     << ", \"inconsistent\": " << lp.rejected.inconsistent
-    << ", \"merge_refused\": " << lp.rejected.merge_refused << "}},\n";
+    << ", \"merge_refused\": " << lp.rejected.merge_refused
+    << ", \"relocalized_fit\": " << lp.rejected.relocalized_fit << "}},\n";
   const pipeline::RelocalizationStats& rl = st.relocalization;
   j << "  \"relocalization\": {\"enabled\": " << (rl.enabled ? "true" : "false")
     << ", \"lost_spells\": " << tc.lost_spells << ", \"max_lost_frames\": " << tc.max_lost_frames

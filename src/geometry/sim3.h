@@ -5,6 +5,7 @@
 /// drifted is a similarity between the two ends of the loop, not a rigid motion.
 
 #include <cmath>
+#include <span>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -57,5 +58,13 @@ inline Sim3d umeyama_sim3(const Eigen::Matrix3Xd& src, const Eigen::Matrix3Xd& d
   S.t = M.topRightCorner<3, 1>();
   return S;
 }
+
+/// The similarity S_b_a taking camera poses `from` (camera -> world a) onto `to` (camera ->
+/// world b), same order, at least one pair: apply_to_pose(S, from[i]) ~ to[i]. Its rotation is
+/// the chordal mean of the pairs' rotations from one world to the other (the orientations fix
+/// it even when the cameras lie on a line), then scale and translation by least squares on
+/// the camera centres (scale 1 when they coincide, or when `with_scale` is false).
+Sim3d fit_similarity_to_poses(std::span<const SE3d> from, std::span<const SE3d> to,
+                              bool with_scale = true);
 
 }  // namespace mer::geometry

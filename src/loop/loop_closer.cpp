@@ -36,7 +36,8 @@ constexpr double kNsPerS = 1e9;
 }  // namespace
 
 LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2,
-                       bool metric, backend::LocalBundleAdjuster* ba)
+                       bool metric, backend::LocalBundleAdjuster* ba,
+                       const RelocalizerOptions& reloc)
     : opts_(opts),
       map_(map),
       level_sigma2_(std::move(level_sigma2)),
@@ -52,7 +53,14 @@ LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float
   best_inlier_.reserve(nk);
   x_new_.reserve(nk);
   x_old_.reserve(nk);
+  if (opts_.merge_segments && opts_.merge_by_relocalization) {
+    // Deterministic: no time budget (localize_against never retrieves or times out anyway).
+    merge_reloc_ = std::make_unique<Relocalizer>(reloc, map_, db_, -1, true);
+    reloc_tried_.reserve(static_cast<std::size_t>(opts_.max_candidates));
+  }
 }
+
+LoopCloser::~LoopCloser() = default;
 
 float LoopCloser::sigma2(const features::Keypoint& k) const {
   return features::level_sigma2(level_sigma2_, k.level);
@@ -69,13 +77,14 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
     return rep;
   }
   const std::uint64_t serial = map_.keyframe_serial(kf);
-  if (any_loop_ &&
-      serial < last_loop_serial_ + static_cast<std::uint64_t>(opts_.cooldown_keyframes)) {
-    return rep;
-  }
+  // After a loop its own segment rests (cooldown_keyframes); merges with another are still
+  // looked for: the camera that returned to a segment sees the one it left there.
+  const bool cooling = any_loop_ && serial < last_loop_serial_ + static_cast<std::uint64_t>(
+                                                                     opts_.cooldown_keyframes);
+  if (cooling && !opts_.merge_segments) return rep;
   ++totals_.keyframes_checked;
   const std::uint16_t segment = map_.keyframe_segment(kf);
-  retrieve_candidates(kf, serial, segment);
+  retrieve_candidates(kf, serial, segment, cooling);
   Hypothesis best = check_candidates(kf, segment, K, rep);
   decide(kf, serial, segment, best, K, rep);
   rep.ms = platform::elapsed_ms(t0);
@@ -86,7 +95,7 @@ LoopReport LoopCloser::spin_once(map::KeyframeId kf, const geometry::Pinhole& K)
 }
 
 void LoopCloser::retrieve_candidates(map::KeyframeId kf, std::uint64_t serial,
-                                     std::uint16_t segment) {
+                                     std::uint16_t segment, bool merges_only) {
   // 1. Retrieval. Old keyframes the new one already shares points with (tracking found
   // their points again) come first, by shared points; then those whose key score passes the
   // bar, by score.
@@ -111,6 +120,7 @@ void LoopCloser::retrieve_candidates(map::KeyframeId kf, std::uint64_t serial,
       if (opts_.merge_segments) scored.push_back(Candidate{false, key_scores[id], id});
       continue;
     }
+    if (merges_only) continue;
     if (map_.keyframe_serial(id) + static_cast<std::uint64_t>(opts_.min_keyframe_gap) > serial ||
         map_.keyframe_t_ns(id) + min_gap_ns > t_kf) {
       continue;
@@ -147,9 +157,18 @@ void LoopCloser::retrieve_candidates(map::KeyframeId kf, std::uint64_t serial,
   });
   MER_LOG_DEBUG("loop: keyframe of frame %llu: %zu candidates (key score bar %.1f)",
                 static_cast<unsigned long long>(map_.keyframe_seq(kf)), ranked.size(), bar);
-  if (ranked.size() > static_cast<std::size_t>(opts_.max_candidates)) {
-    ranked.resize(static_cast<std::size_t>(opts_.max_candidates));
+  const auto max_c = static_cast<std::size_t>(opts_.max_candidates);
+  if (opts_.merge_segments && opts_.merge_by_relocalization && ranked.size() > max_c) {
+    // Keyframes sharing points with the new one fill the places first; another segment's
+    // best-scored keyframe (a merge to measure) takes the last one when none is among them.
+    const auto other = [&](const Candidate& c) { return map_.keyframe_segment(c.id) != segment; };
+    if (std::none_of(ranked.begin(), ranked.begin() + static_cast<std::ptrdiff_t>(max_c), other)) {
+      const auto it =
+          std::find_if(ranked.begin() + static_cast<std::ptrdiff_t>(max_c), ranked.end(), other);
+      if (it != ranked.end()) ranked[max_c - 1] = *it;
+    }
   }
+  if (ranked.size() > max_c) ranked.resize(max_c);
 }
 
 LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uint16_t segment,
@@ -159,6 +178,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   //    made to pass by the guided search).
   Hypothesis best;
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
+  reloc_tried_.clear();
   for (const Candidate& c : ranked_) {
     const map::KeyframeId cand = c.id;
     max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
@@ -169,38 +189,60 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
                   static_cast<unsigned long long>(map_.keyframe_seq(kf)),
                   static_cast<unsigned long long>(map_.keyframe_seq(cand)),
                   c.covisible ? "shared points" : "key score", c.score, m);
+    const bool other_segment = map_.keyframe_segment(cand) != segment;
+    Sim3d S_cand_new;
+    int inliers = 0;
     if (m < opts_.min_matches) {
       ++totals_.rejected.few_matches;
-      continue;
-    }
-    Sim3d S_cand_new;
-    int inliers = ransac_sim3(kf, cand, K, S_cand_new);
-    MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
-    if (opts_.guided_min_inliers > 0 && inliers >= opts_.guided_min_inliers) {
-      const int added = guided_matches(kf, cand, S_cand_new, K);
-      if (added > 0) {
-        inliers = refit_sim3(kf, K, S_cand_new);
-        m = static_cast<int>(matches_.size());
+    } else {
+      inliers = ransac_sim3(kf, cand, K, S_cand_new);
+      MER_LOG_DEBUG("loop: %d of %d matches agree (scale %.3f)", inliers, m, S_cand_new.s);
+      if (opts_.guided_min_inliers > 0 && inliers >= opts_.guided_min_inliers) {
+        const int added = guided_matches(kf, cand, S_cand_new, K);
+        if (added > 0) {
+          inliers = refit_sim3(kf, K, S_cand_new);
+          m = static_cast<int>(matches_.size());
+        }
+        MER_LOG_DEBUG("loop: guided search: %d more matches, %d of %d agree (scale %.3f)", added,
+                      inliers, m, S_cand_new.s);
       }
-      MER_LOG_DEBUG("loop: guided search: %d more matches, %d of %d agree (scale %.3f)", added,
-                    inliers, m, S_cand_new.s);
+      if (inliers >= opts_.min_inliers) {
+        const double s_fit = S_cand_new.s;
+        inliers = refine_sim3(kf, K, inliers, S_cand_new);
+        MER_LOG_DEBUG("loop: refined on reprojection: %d agree (scale %.4f, 3D fit %.4f)", inliers,
+                      S_cand_new.s, s_fit);
+      }
+      if (inliers < opts_.min_inliers) ++totals_.rejected.few_inliers;
     }
-    if (inliers >= opts_.min_inliers) {
-      const double s_fit = S_cand_new.s;
-      inliers = refine_sim3(kf, K, inliers, S_cand_new);
-      MER_LOG_DEBUG("loop: refined on reprojection: %d agree (scale %.4f, 3D fit %.4f)", inliers,
-                    S_cand_new.s, s_fit);
+    // Another segment's keyframe the map-points could not measure: its keyframes can.
+    int relocalized = 0;
+    const std::uint16_t cand_segment = map_.keyframe_segment(cand);
+    const bool tried =
+        std::find(reloc_tried_.begin(), reloc_tried_.end(), cand_segment) != reloc_tried_.end();
+    if (inliers < opts_.min_inliers && other_segment && merge_reloc_ && !tried) {
+      // Once per segment and keyframe: another candidate of it has nearly the same neighbours.
+      reloc_tried_.push_back(cand_segment);
+      // The candidate's side placed in the new keyframe's local map; else the new keyframe's
+      // side in the candidate's (the thicker map is the one placed against).
+      relocalized = sim3_from_relocalized_keyframes(kf, cand, K, S_cand_new, inliers);
+      if (relocalized == 0) {
+        Sim3d S_new_cand;
+        relocalized = sim3_from_relocalized_keyframes(cand, kf, K, S_new_cand, inliers);
+        if (relocalized > 0) S_cand_new = S_new_cand.inverse();
+      }
+      if (relocalized == 0) ++totals_.rejected.relocalized_fit;
+      if (relocalized > 0) {
+        matches_.clear();  // no point matches to merge: the loop's fusion joins the points
+        inlier_.clear();
+        m = inliers;
+      }
     }
-    if (inliers < opts_.min_inliers) {
-      ++totals_.rejected.few_inliers;
-      continue;
-    }
+    if (relocalized == 0 && inliers < opts_.min_inliers) continue;
     if (inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
     // travelled since the old one (perceptual aliasing: a similar place far away). Another
     // segment's frame is unrelated: no path, no bound (the checks below still apply).
-    const bool merge = map_.keyframe_segment(cand) != segment;
-    const double drift = merge ? 0.0 : implied_drift(kf, cand, S_cand_new);
+    const double drift = other_segment ? 0.0 : implied_drift(kf, cand, S_cand_new);
     if (drift > opts_.max_drift_fraction) {
       MER_LOG_DEBUG("loop: refused, it implies %.1f %% drift", 100.0 * drift);
       ++rep.refused_drift;
@@ -211,19 +253,30 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     // share (a repeated poster matches its copy; the walls around it do not).
     double found_new = 0.0;
     double found_old = 0.0;
-    found_both_ways(kf, cand, S_cand_new, K, found_new, found_old);
+    int in_new_view = 0;
+    int in_old_view = 0;
+    found_both_ways(kf, cand, S_cand_new, K, found_new, found_old, in_new_view, in_old_view);
     if (usual < 0.0) usual = usual_found_share(kf, K);
     MER_LOG_DEBUG(
-        "loop: found both ways: %.2f of the old points in the new view, %.2f of the "
+        "loop: found both ways: %.2f of the %d old points in the new view, %.2f of the %d "
         "new in the old view (%.2f with its own neighbour)",
-        found_new, found_old, usual);
-    if (std::min(found_new, found_old) < opts_.min_found_fraction * usual) {
+        found_new, in_new_view, found_old, in_old_view, usual);
+    // Measured from keyframes: the placed side's keypoints found the other side's points; a
+    // side with too few points in the other's view (min_matches: a thin segment) is not
+    // counted, but one side must be.
+    double found = std::min(found_new, found_old);
+    if (relocalized > 0) {
+      const bool new_ok = in_new_view >= opts_.min_matches;
+      const bool old_ok = in_old_view >= opts_.min_matches;
+      found = new_ok && old_ok ? found : new_ok ? found_new : old_ok ? found_old : 0.0;
+    }
+    if (found < opts_.min_found_fraction * usual) {
       ++rep.refused_found;
       ++totals_.rejected.not_found;
       continue;
     }
-    best =
-        Hypothesis{cand, m, inliers, S_cand_new, drift, found_new, found_old, c.covisible, usual};
+    best = Hypothesis{cand,      m,         inliers,     S_cand_new, drift,
+                      found_new, found_old, c.covisible, usual,      relocalized};
     best_matches_.swap(matches_);
     best_inlier_.swap(inlier_);
     best_old_views_.swap(old_views_);
@@ -273,6 +326,7 @@ void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t 
       rep.found_usual = best.usual;
       if (map_.keyframe_segment(cand) != segment) {
         merge_segments(kf, cand, best.sim, rep);
+        rep.merge_relocalized = best.relocalized;
         // Refused by the map (the tracker discarded a segment meanwhile, lock-free): the two
         // are still in unrelated frames, nothing to correct.
         if (rep.merged_from == map::kNoSegment) {
@@ -304,6 +358,7 @@ void LoopCloser::finish_closure(map::KeyframeId kf, std::uint64_t serial,
   ++totals_.loops_closed;
   if (rep.merged_from != map::kNoSegment) {
     ++totals_.segments_merged;
+    if (rep.merge_relocalized > 0) ++totals_.merges_by_relocalization;
     if (totals_.merges.size() < kMaxLoopEvents) {
       totals_.merges.push_back(SegmentMergeEvent{
           map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.merged_from,
@@ -407,8 +462,8 @@ double LoopCloser::found_share(map::KeyframeId view, const Sim3d& S_view_w,
 }
 
 void LoopCloser::found_both_ways(map::KeyframeId kf, map::KeyframeId cand, const Sim3d& S_cand_new,
-                                 const geometry::Pinhole& K, double& found_new,
-                                 double& found_old) const {
+                                 const geometry::Pinhole& K, double& found_new, double& found_old,
+                                 int& in_new_view, int& in_old_view) const {
   found_new = 0.0;
   found_old = 0.0;
   SE3d T_w_new;
@@ -429,6 +484,8 @@ void LoopCloser::found_both_ways(map::KeyframeId kf, map::KeyframeId cand, const
   int n_old_view = 0;
   found_new = found_share(kf, S_new_w, old_pts, K, n_new_view);
   found_old = found_share(cand, S_cand_w, new_pts, K, n_old_view);
+  in_new_view = n_new_view;
+  in_old_view = n_old_view;
 }
 
 double LoopCloser::usual_found_share(map::KeyframeId kf, const geometry::Pinhole& K) const {

@@ -21,7 +21,11 @@
 ///     in both keyframes (`refine_iterations`; the points' depth, which the 3D fit weighs,
 ///     is their least certain part). `min_inliers` must agree; a loop implying more than
 ///     `max_drift_fraction` of the path since the candidate is refused (a similar place
-///     elsewhere), and `consistent_checks` keyframes in a row must find the same place.
+///     elsewhere), and `consistent_checks` keyframes in a row must find the same place. A
+///     candidate of another map segment whose map-points are too few for this (a segment that
+///     was being lost) is measured from its keyframes instead (`merge_by_relocalization`,
+///     loop_merge_relocalized.cpp): they are relocalized against the new keyframe's local map
+///     and the similarity between the two worlds is fitted to their poses.
 ///  3. Correction: the new keyframe and its recent covisible neighbours are moved rigidly
 ///     onto the loop; then a Sim(3) pose graph over every keyframe (Ceres; edges: consecutive
 ///     keyframes and covisibility pairs with their relative similarity before the correction,
@@ -42,6 +46,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -50,6 +55,7 @@
 #include "geometry/camera_model.h"
 #include "geometry/sim3.h"
 #include "loop/keyframe_database.h"
+#include "loop/relocalizer.h"
 #include "map/map.h"
 
 namespace mer::backend {
@@ -84,6 +90,11 @@ struct LoopOptions {
   double min_time_gap_s = 3.0;
   double min_found_fraction = 0.3;
   bool merge_segments = true;
+  bool merge_by_relocalization = true;
+  int merge_relocalize_keyframes = 8;
+  int merge_min_keyframes = 3;
+  double merge_max_scale_uncertainty = 0.1;
+  double merge_max_pose_residual_deg = 3.0;
   int seed = 1;
 
   template <class V>
@@ -170,12 +181,42 @@ struct LoopOptions {
             "keyframes in a row (at most 3 apart) whose geometric check must find the same old "
             "place (the candidate or a keyframe covisible with it) before the loop is corrected",
             options::Range<int>{1, 100});
+    v.field("merge_by_relocalization", merge_by_relocalization,
+            "a candidate of another segment with too few map-points for the 3D similarity (a "
+            "segment that was being lost keeps few) is measured from its keyframes instead: "
+            "the merge_relocalize_keyframes of its segment made nearest to it are relocalized "
+            "against the "
+            "new keyframe's local map (the relocalizer's matching, PnP and refinement, "
+            "section relocalization), and the similarity fitted to those placed (rotation "
+            "from their orientations, scale and translation from their positions) is checked "
+            "both ways as any loop's");
+    v.field("merge_relocalize_keyframes", merge_relocalize_keyframes,
+            "merge_by_relocalization: keyframes of the candidate's segment tried, the candidate "
+            "and those made nearest to it",
+            options::Range<int>{1, 64});
+    v.field("merge_min_keyframes", merge_min_keyframes,
+            "merge_by_relocalization: keyframes placed that the similarity needs, at least",
+            options::Range<int>{3, 64});
+    v.field("merge_max_scale_uncertainty", merge_max_scale_uncertainty,
+            "merge_by_relocalization: the similarity's scale uncertainty (standard deviation of "
+            "its logarithm), at most; the scale is measured twice, by the spread of the placed "
+            "keyframes' centres in both frames and by the depth ratios of the map-points both "
+            "segments hold for the same keypoints, and the two are combined by their "
+            "uncertainties; keyframes that disagree most are dropped while more than "
+            "merge_min_keyframes remain",
+            options::Range<double>{0.0, 10.0});
+    v.field("merge_max_pose_residual_deg", merge_max_pose_residual_deg,
+            "merge_by_relocalization: each placed keyframe's pose after the similarity within "
+            "this of its relocalized one: its orientation, and its position as the angle the "
+            "error subtends at its median scene depth, degrees",
+            options::Range<double>{0.0, 180.0});
     v.field("merge_consistent_checks", merge_consistent_checks,
             "consistent_checks for a match onto another segment's keyframe: no drift bound "
             "holds between two world frames, and a merge joins them for good",
             options::Range<int>{1, 100});
     v.field("cooldown_keyframes", cooldown_keyframes,
-            "keyframes after a closed loop before the next loop is looked for",
+            "keyframes after a closed loop before the next loop in its segment is looked for "
+            "(merges with other segments are looked for meanwhile)",
             options::Range<int>{0, 100000});
     v.field("seed", seed, "RANSAC sampling seed", options::Range<int>{0, 1 << 30});
   }
@@ -209,7 +250,8 @@ struct LoopReport {
   std::uint16_t merged_from = map::kNoSegment;  ///< the loop joined this segment ...
   std::uint16_t merged_into = map::kNoSegment;  ///< ... to this one (merge_segments)
   int merge_keyframes = 0;                      ///< keyframes the merge moved
-  geometry::Sim3d merge_similarity;             ///< world of merged_from -> world of merged_into
+  int merge_relocalized = 0;  ///< keyframes the merge's similarity was fitted to (0: 3D matches)
+  geometry::Sim3d merge_similarity;  ///< world of merged_from -> world of merged_into
 };
 
 /// Two map segments joined by a loop between them (merge_segments).
@@ -243,12 +285,14 @@ struct LoopClosureEvent {
 
 /// Loop hypotheses refused, by reason (summary.json `loop.rejected`).
 struct LoopRejections {
-  std::uint64_t few_matches = 0;    ///< a candidate with fewer than min_matches point matches
-  std::uint64_t few_inliers = 0;    ///< no similarity explained min_inliers of them
-  std::uint64_t drift = 0;          ///< the correction was implausible (max_drift_fraction)
-  std::uint64_t not_found = 0;      ///< not confirmed both ways (min_found_fraction)
-  std::uint64_t inconsistent = 0;   ///< seen once, not again by the next keyframes
-  std::uint64_t merge_refused = 0;  ///< the map refused the merge (a segment discarded meanwhile)
+  std::uint64_t few_matches = 0;      ///< a candidate with fewer than min_matches point matches
+  std::uint64_t few_inliers = 0;      ///< no similarity explained min_inliers of them
+  std::uint64_t drift = 0;            ///< the correction was implausible (max_drift_fraction)
+  std::uint64_t not_found = 0;        ///< not confirmed both ways (min_found_fraction)
+  std::uint64_t inconsistent = 0;     ///< seen once, not again by the next keyframes
+  std::uint64_t merge_refused = 0;    ///< the map refused the merge (a segment discarded meanwhile)
+  std::uint64_t relocalized_fit = 0;  ///< merge_by_relocalization, both ways: too few keyframes
+                                      ///< placed, or their similarity did not hold
 };
 
 /// Closed loops kept per run, at most (later ones are only counted).
@@ -262,13 +306,15 @@ struct LoopTotals {
   std::uint64_t merged_points = 0;
   double max_ms = 0.0;  ///< longest spin, full BA excluded
   double max_full_ba_ms = 0.0;
-  LoopReport last_loop;                    ///< the last loop closed
-  std::vector<LoopClosureEvent> closures;  ///< every loop closed (at most kMaxLoopEvents)
-  LoopRejections rejected;                 ///< refusals by reason
-  std::uint64_t excluded_connected = 0;    ///< candidates skipped: they share points (counted
-                                           ///< per keyframe checked)
-  std::uint64_t segments_merged = 0;       ///< loops that joined two segments (of loops_closed)
-  std::vector<SegmentMergeEvent> merges;   ///< every merge (at most kMaxLoopEvents)
+  LoopReport last_loop;                        ///< the last loop closed
+  std::vector<LoopClosureEvent> closures;      ///< every loop closed (at most kMaxLoopEvents)
+  LoopRejections rejected;                     ///< refusals by reason
+  std::uint64_t excluded_connected = 0;        ///< candidates skipped: they share points (counted
+                                               ///< per keyframe checked)
+  std::uint64_t segments_merged = 0;           ///< loops that joined two segments (of loops_closed)
+  std::uint64_t merges_by_relocalization = 0;  ///< of segments_merged: measured from keyframes
+                                               ///< relocalized (merge_by_relocalization)
+  std::vector<SegmentMergeEvent> merges;       ///< every merge (at most kMaxLoopEvents)
 };
 
 /// Loop-closure stage: `spin_once(new keyframe) -> LoopReport`.
@@ -276,8 +322,13 @@ class LoopCloser {
  public:
   /// `metric`: the map has a known scale (RGB-D): loops are rigid. `ba` runs the full-graph
   /// optimization after a loop (may be null: none).
+  /// `reloc`: the relocalizer's options, for placing another segment's keyframes
+  /// (merge_by_relocalization).
   LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float> level_sigma2, bool metric,
-             backend::LocalBundleAdjuster* ba);
+             backend::LocalBundleAdjuster* ba, const RelocalizerOptions& reloc = {});
+  ~LoopCloser();
+  LoopCloser(const LoopCloser&) = delete;
+  LoopCloser& operator=(const LoopCloser&) = delete;
 
   /// Looks for a loop closing at keyframe kf and corrects the map when one is found. Takes the
   /// map's writer lock itself.
@@ -307,11 +358,14 @@ class LoopCloser {
     double found_old = 0.0;
     bool connected = false;  ///< it shared points with the new keyframe
     double usual = 0.0;      ///< usual_found_share of the new keyframe
+    int relocalized = 0;     ///< keyframes its similarity was fitted to (0: 3D matches)
   };
   // The steps of spin_once, in order.
   /// Retrieval into ranked_: old keyframes the new one shares points with (by shared points),
   /// then those whose key score passes the bar (by score), at most max_candidates.
-  void retrieve_candidates(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment);
+  /// `merges_only` (a loop's cooldown): other segments' keyframes only.
+  void retrieve_candidates(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment,
+                           bool merges_only);
   /// Geometric check of every candidate; the one whose similarity explains the most matches
   /// and passes the drift and both-ways checks wins (cand kNoId: none).
   Hypothesis check_candidates(map::KeyframeId kf, std::uint16_t segment, const geometry::Pinhole& K,
@@ -355,9 +409,12 @@ class LoopCloser {
   /// Guided check of S_cand_new both ways: the old views' points projected into the new
   /// keyframe (found_new) and the new keyframe's points projected into the candidate
   /// (found_old); each is the share of the points in view that find a keypoint within
-  /// fuse_radius_px sigmas with a descriptor within max_descriptor_distance.
+  /// fuse_radius_px sigmas with a descriptor within max_descriptor_distance. `in_new_view`:
+  /// the old views' points in the new keyframe's view; `in_old_view`: the new keyframe's in the
+  /// candidate's.
   void found_both_ways(map::KeyframeId kf, map::KeyframeId cand, const geometry::Sim3d& S_cand_new,
-                       const geometry::Pinhole& K, double& found_new, double& found_old) const;
+                       const geometry::Pinhole& K, double& found_new, double& found_old,
+                       int& in_new_view, int& in_old_view) const;
   /// Appends kf's live, not-bad map points (one per associated keypoint) to `out`.
   void append_points(map::KeyframeId kf, std::vector<map::PointId>& out) const;
   /// Median depth of kf's map points in the camera T_c_w (0 without any).
@@ -373,6 +430,14 @@ class LoopCloser {
                      int& in_view) const;
   int ransac_sim3(map::KeyframeId kf, map::KeyframeId cand, const geometry::Pinhole& K,
                   geometry::Sim3d& S_cand_new);
+  /// merge_by_relocalization: the keyframes of cand's segment made nearest to it, relocalized
+  /// against kf's local map; the similarity fitted to those placed, as S_cand_new (cand's
+  /// camera from kf's). (The caller also swaps the two, to place kf's side in cand's map.) Returns
+  /// how many keyframes it rests on (0: refused); `inliers` gets the candidate's refined
+  /// relocalization inliers (or the best placed keyframe's).
+  int sim3_from_relocalized_keyframes(map::KeyframeId kf, map::KeyframeId cand,
+                                      const geometry::Pinhole& K, geometry::Sim3d& S_cand_new,
+                                      int& inliers);
   /// Camera-frame positions of the matches' points (x_new_, x_old_); drops the matches whose
   /// points are gone or behind a camera. False when a pose is missing.
   bool match_positions(map::KeyframeId kf, map::KeyframeId cand);
@@ -449,6 +514,8 @@ class LoopCloser {
   double max_scale_ = 0.0;  // scale bound of the candidate being checked (set per candidate)
   backend::LocalBundleAdjuster* ba_;
   KeyframeDatabase db_;
+  std::unique_ptr<Relocalizer> merge_reloc_;  ///< merge_by_relocalization (db_ unused by it)
+  std::vector<std::uint16_t> reloc_tried_;    ///< segments measured so in this check
   std::uint64_t last_loop_serial_ = 0;
   bool any_loop_ = false;
   std::uint32_t rng_ = 1;

@@ -43,6 +43,7 @@ Relocalizer::Relocalizer(const RelocalizerOptions& opts, map::Map& map, Keyframe
   kp_point_.resize(nkp);
   corr_X_.resize(nkp);
   corr_uv_.resize(nkp);
+  corr_kp_.resize(nkp);
   corr_sigma_.resize(nkp);
   corr_mask_.resize(nkp);
   cell_start_.resize(static_cast<std::size_t>(kGridCols * kGridRows) + 1);
@@ -82,55 +83,90 @@ RelocResult Relocalizer::spin_once(const RelocQuery& q) {
     if (map_.keyframe_generation(hit.id) != hit.generation) continue;     // culled meanwhile
     if (map_.segment_discarded(map_.keyframe_segment(hit.id))) continue;  // a failed start's
     ++r.candidates_tried;
-
-    // 2. The candidate and its best covisible keyframes: descriptor matches, PnP-RANSAC.
-    kfs_.clear();
-    kfs_.push_back(hit.id);
-    const std::size_t nc = map_.covisible_keyframes(hit.id, covis_);
-    const auto n_local = std::min<std::size_t>(nc, static_cast<std::size_t>(opts_.local_keyframes));
-    const auto n_match =
-        std::min<std::size_t>(nc, static_cast<std::size_t>(opts_.match_neighbours));
-    // Order: the match set first, so the points it gathers are a prefix of the local map's.
-    for (std::size_t k = 0; k < std::max(n_local, n_match); ++k) kfs_.push_back(covis_[k].id);
-    ++stamp_;
-    if (stamp_ == 0) {  // wrapped: forget every stamp
-      std::fill(point_stamp_.begin(), point_stamp_.end(), 0U);
-      stamp_ = 1;
+    if (try_keyframe(frame, hit.id, r)) {
+      r.generation = hit.generation;
+      break;
     }
-    pts_p_w_.clear();
-    pts_desc_.clear();
-    const std::size_t n_match_pts = gather_points(1 + n_match);
-    const int m = match_descriptors(frame, n_match_pts);
-    r.matches = m;
-    r.pnp_inliers = 0;
-    r.inliers = 0;
-    if (m < opts_.min_matches) continue;
-    geometry::PnpInput in;
-    const auto um = static_cast<std::size_t>(m);
-    in.X_w = std::span<const Eigen::Vector3d>(corr_X_.data(), um);
-    in.uv = std::span<const Eigen::Vector2d>(corr_uv_.data(), um);
-    in.sigma = std::span<const float>(corr_sigma_.data(), um);
-    in.K = frame.K;
-    const geometry::PnpResult pr = pnp_->solve(in, std::span<std::uint8_t>(corr_mask_.data(), um));
-    r.pnp_inliers = pr.num_inliers;
-    if (!pr.ok) continue;
-
-    // 3. Refinement on the local map's points found by projection.
-    SE3d T = pr.T_c_w;
-    const std::size_t n_local_pts = gather_points(kfs_.size());
-    const int mp = match_projection(frame, n_local_pts, T);
-    const int inliers = mp >= opts_.min_inliers ? refine(frame, mp, T) : 0;
-    r.inliers = inliers;
-    if (inliers < opts_.min_inliers) continue;
-    r.success = true;
-    r.T_c_w = T;  // rotation back onto SO(3) after the refinement's updates
-    r.T_c_w.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
-    r.keyframe = hit.id;
-    r.generation = hit.generation;
-    break;
   }
   r.ms = platform::elapsed_ms(t0);
   return r;
+}
+
+RelocResult Relocalizer::localize_against(const RelocQuery& q, map::KeyframeId kf) {
+  const auto t0 = platform::monotonic_now_ns();
+  RelocResult r;
+  if (reader_ >= 0) map_.reader_quiescent(reader_);
+  const std::size_t n_kp = std::min({q.keypoints.size(), q.descriptors.size(), kp_best_.size()});
+  if (n_kp == 0 || !(q.K.fx > 0.0) || !(q.K.fy > 0.0) || !map_.keyframe_is_live(kf)) {
+    r.ms = platform::elapsed_ms(t0);
+    return r;
+  }
+  const RelocQuery frame{q.seq, q.t_ns, q.keypoints.first(n_kp), q.descriptors.first(n_kp), q.K};
+  build_grid(frame, n_kp);
+  r.candidates_tried = 1;
+  if (try_keyframe(frame, kf, r)) r.generation = map_.keyframe_generation(kf);
+  r.ms = platform::elapsed_ms(t0);
+  return r;
+}
+
+bool Relocalizer::try_keyframe(const RelocQuery& frame, map::KeyframeId id, RelocResult& r) {
+  // 2. The candidate and its best covisible keyframes: descriptor matches, PnP-RANSAC.
+  last_corr_ = 0;
+  kfs_.clear();
+  kfs_.push_back(id);
+  const std::size_t nc = map_.covisible_keyframes(id, covis_);
+  const auto n_local = std::min<std::size_t>(nc, static_cast<std::size_t>(opts_.local_keyframes));
+  const auto n_match = std::min<std::size_t>(nc, static_cast<std::size_t>(opts_.match_neighbours));
+  // Order: the match set first, so the points it gathers are a prefix of the local map's.
+  for (std::size_t k = 0; k < std::max(n_local, n_match); ++k) kfs_.push_back(covis_[k].id);
+  ++stamp_;
+  if (stamp_ == 0) {  // wrapped: forget every stamp
+    std::fill(point_stamp_.begin(), point_stamp_.end(), 0U);
+    stamp_ = 1;
+  }
+  pts_p_w_.clear();
+  pts_desc_.clear();
+  const std::size_t n_match_pts = gather_points(1 + n_match);
+  const int m = match_descriptors(frame, n_match_pts);
+  r.matches = m;
+  r.pnp_inliers = 0;
+  r.inliers = 0;
+  if (m < opts_.min_matches) return false;
+  geometry::PnpInput in;
+  const auto um = static_cast<std::size_t>(m);
+  in.X_w = std::span<const Eigen::Vector3d>(corr_X_.data(), um);
+  in.uv = std::span<const Eigen::Vector2d>(corr_uv_.data(), um);
+  in.sigma = std::span<const float>(corr_sigma_.data(), um);
+  in.K = frame.K;
+  const geometry::PnpResult pr = pnp_->solve(in, std::span<std::uint8_t>(corr_mask_.data(), um));
+  r.pnp_inliers = pr.num_inliers;
+  if (!pr.ok) return false;
+
+  // 3. Refinement on the local map's points found by projection.
+  SE3d T = pr.T_c_w;
+  const std::size_t n_local_pts = gather_points(kfs_.size());
+  const int mp = match_projection(frame, n_local_pts, T);
+  const int inliers = mp >= opts_.min_inliers ? refine(frame, mp, T) : 0;
+  r.inliers = inliers;
+  if (inliers < opts_.min_inliers) return false;
+  r.success = true;
+  last_corr_ = static_cast<std::size_t>(mp);
+  r.T_c_w = T;  // rotation back onto SO(3) after the refinement's updates
+  r.T_c_w.linear() = Eigen::Quaterniond(T.linear()).normalized().toRotationMatrix();
+  r.keyframe = id;
+  return true;
+}
+
+std::size_t Relocalizer::last_inliers(std::vector<std::uint32_t>& keypoints,
+                                      std::vector<Eigen::Vector3d>& X_w) const {
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < last_corr_; ++i) {
+    if (corr_mask_[i] == 0) continue;
+    keypoints.push_back(corr_kp_[i]);
+    X_w.push_back(corr_X_[i]);
+    ++n;
+  }
+  return n;
 }
 
 std::size_t Relocalizer::gather_points(std::size_t num_kfs) {
@@ -176,6 +212,7 @@ int Relocalizer::collect_correspondences(const RelocQuery& q) {
     const features::Keypoint& kp = q.keypoints[k];
     corr_X_[mi] = pts_p_w_[static_cast<std::size_t>(kp_point_[k])];
     corr_uv_[mi] = Eigen::Vector2d(kp.x, kp.y);
+    corr_kp_[mi] = static_cast<std::uint32_t>(k);
     corr_sigma_[mi] = kp.scale > 0.0F ? kp.scale : 1.0F;
   }
   return m;

@@ -158,9 +158,22 @@ class Relocalizer {
   /// Tries to relocalize one frame (file comment for the steps). No heap allocation.
   RelocResult spin_once(const RelocQuery& q);
 
+  /// Steps 2-4 against one given keyframe (no retrieval, no time budget): the frame is placed
+  /// in the world frame of `kf`'s segment or not at all. Used to place the keyframes of one
+  /// map segment in another's local map (loop merges). No heap allocation.
+  RelocResult localize_against(const RelocQuery& q, map::KeyframeId kf);
+
   const RelocalizerOptions& options() const { return opts_; }
 
+  /// After a successful spin_once or localize_against: its refined inliers, as the frame's
+  /// keypoint indices and the matched map-points' world positions (appended; the caller's
+  /// vectors may allocate). Returns how many.
+  std::size_t last_inliers(std::vector<std::uint32_t>& keypoints,
+                           std::vector<Eigen::Vector3d>& X_w) const;
+
  private:
+  /// Steps 2-4 for the candidate keyframe `id` (result fields into r); true on success.
+  bool try_keyframe(const RelocQuery& frame, map::KeyframeId id, RelocResult& r);
   /// Local map points of keyframes kfs_ (each once): appended to pts_*; returns the count.
   std::size_t gather_points(std::size_t num_kfs);
   /// Descriptor matches between the frame and pts_[0, n): fills corr_*; returns the count.
@@ -194,6 +207,8 @@ class Relocalizer {
   // Correspondences.
   std::vector<Eigen::Vector3d> corr_X_;
   std::vector<Eigen::Vector2d> corr_uv_;
+  std::vector<std::uint32_t> corr_kp_;  ///< the frame keypoint of each correspondence
+  std::size_t last_corr_ = 0;           ///< correspondences of the last successful refinement
   std::vector<float> corr_sigma_;
   std::vector<std::uint8_t> corr_mask_;
   // Keypoint grid (counting sort of keypoints into cells).

@@ -96,9 +96,9 @@ Status Pipeline::init(const std::string& output_dir) {
     loop_ba_ = std::make_unique<backend::LocalBundleAdjuster>(
         config_.backend, *map_, tracker_->level_sigma2(), false, builder_->metric_map_depth());
   }
-  loop_ = std::make_unique<loop::LoopCloser>(config_.loop, *map_, tracker_->level_sigma2(),
-                                             builder_->metric_map_depth(),
-                                             loop_ba_ ? loop_ba_.get() : ba_.get());
+  loop_ = std::make_unique<loop::LoopCloser>(
+      config_.loop, *map_, tracker_->level_sigma2(), builder_->metric_map_depth(),
+      loop_ba_ ? loop_ba_.get() : ba_.get(), config_.relocalization);
   if (config_.relocalization.enabled) {
     int reader = -1;
     if (!config_.pipeline.lockstep) {

@@ -12,6 +12,7 @@
 
 #include "core/pose.h"
 #include "core/timestamp.h"
+#include "geometry/sim3.h"
 #include "pipeline/output_stage.h"
 
 namespace mer::pipeline {
@@ -85,39 +86,6 @@ FitError fit_error(const geometry::Sim3d& S, std::span<const SE3d> live,
   e.position2 /= n;
   e.rotation /= n;
   return e;
-}
-
-/// The similarity taking the keyframes `live` onto `final` (same order, at least one): its
-/// rotation the chordal mean of the keyframes' rotations from one to the other (the
-/// orientations fix it even when the keyframes lie on a line), then scale and translation by
-/// least squares on the positions.
-geometry::Sim3d fit_similarity(std::span<const SE3d> live, std::span<const SE3d> final) {
-  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d p_mean = Eigen::Vector3d::Zero();
-  Eigen::Vector3d q_mean = Eigen::Vector3d::Zero();
-  for (std::size_t i = 0; i < live.size(); ++i) {
-    sum += final[i].linear() * live[i].linear().transpose();
-    p_mean += live[i].translation();
-    q_mean += final[i].translation();
-  }
-  const auto n = static_cast<double>(live.size());
-  p_mean /= n;
-  q_mean /= n;
-  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(sum, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  D(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0.0 ? -1.0 : 1.0;
-  geometry::Sim3d S;
-  S.R = svd.matrixU() * D * svd.matrixV().transpose();
-  double num = 0.0;
-  double den = 0.0;
-  for (std::size_t i = 0; i < live.size(); ++i) {
-    const Eigen::Vector3d p = S.R * (live[i].translation() - p_mean);
-    num += p.dot(final[i].translation() - q_mean);
-    den += p.squaredNorm();
-  }
-  S.s = den > 0.0 && num > 0.0 ? num / den : 1.0;
-  S.t = q_mean - S.s * S.R * p_mean;
-  return S;
 }
 
 }  // namespace
@@ -225,7 +193,7 @@ Status join_segment_files(const std::string& dir, std::span<const SegmentMergeRe
         chain = m.sim_into_from * chain;
         at = m.into;
       }
-      const geometry::Sim3d fit = fit_similarity(live, final);
+      const geometry::Sim3d fit = geometry::fit_similarity_to_poses(live, final);
       const FitError e_fit = fit_error(fit, live, final);
       const FitError e_chain = fit_error(chain, live, final);
       if (e_fit.position2 <= e_chain.position2 && e_fit.rotation <= e_chain.rotation) {

@@ -44,7 +44,7 @@ TEST(LoopOptions, EveryFieldHasADocLine) {
   testing::DocCheck v;
   LoopOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 25);
+  EXPECT_EQ(v.fields, 30);
 }
 
 // An old keyframe A and, after a detour, a new keyframe B at nearly the same place, whose map
