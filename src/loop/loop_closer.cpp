@@ -179,6 +179,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   Hypothesis best;
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
   reloc_tried_.clear();
+  best_weld_.clear();
   for (const Candidate& c : ranked_) {
     const map::KeyframeId cand = c.id;
     max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
@@ -216,6 +217,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     }
     // Another segment's keyframe the map-points could not measure: its keyframes can.
     int relocalized = 0;
+    weld_.clear();
     const std::uint16_t cand_segment = map_.keyframe_segment(cand);
     const bool tried =
         std::find(reloc_tried_.begin(), reloc_tried_.end(), cand_segment) != reloc_tried_.end();
@@ -280,6 +282,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     best_matches_.swap(matches_);
     best_inlier_.swap(inlier_);
     best_old_views_.swap(old_views_);
+    best_weld_.swap(weld_);
   }
   return best;
 }
@@ -313,6 +316,7 @@ void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t 
       matches_.swap(best_matches_);
       inlier_.swap(best_inlier_);
       old_views_.swap(best_old_views_);
+      weld_.swap(best_weld_);
       rep.matches = best.matches;
       rep.inliers = best.inliers;
       rep.loop_keyframe = cand;
@@ -335,6 +339,7 @@ void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t 
         }
       }
       rep.merged_points = correct(kf, cand, best.sim, K, rep);
+      if (rep.merged_from != map::kNoSegment) rep.merged_points += weld(rep);
       rep.closed = true;
     }
   }

@@ -516,6 +516,20 @@ class LoopCloser {
   KeyframeDatabase db_;
   std::unique_ptr<Relocalizer> merge_reloc_;  ///< merge_by_relocalization (db_ unused by it)
   std::vector<std::uint16_t> reloc_tried_;    ///< segments measured so in this check
+  /// A placed keyframe's keypoint and the other segment's point it was matched to
+  /// (merge_by_relocalization): observations added once the two segments are one.
+  struct Weld {
+    map::KeyframeId kf = map::kNoId;
+    std::uint32_t kp = 0;
+    map::PointId point = map::kNoId;
+  };
+  std::vector<Weld> weld_;       // the hypothesis being checked
+  std::vector<Weld> best_weld_;  // the best one so far
+  /// After a merge measured from keyframes: each placed keyframe observes the points its
+  /// relocalization matched (a keypoint holding a point of its own merges it into that one),
+  /// so that the joined map's optimizations hold the two sides together. Returns the points
+  /// merged; rep.fused_observations counts the observations added.
+  int weld(LoopReport& rep);
   std::uint64_t last_loop_serial_ = 0;
   bool any_loop_ = false;
   std::uint32_t rng_ = 1;

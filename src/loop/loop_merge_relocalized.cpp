@@ -35,8 +35,10 @@ constexpr double kScaleAgreementSigmas = 3.0;
 /// A keyframe of the candidate's segment placed in the new keyframe's world frame.
 struct Placed {
   map::KeyframeId id = map::kNoId;
-  SE3d T_from = SE3d::Identity();  ///< camera -> its own segment's world
-  SE3d T_to = SE3d::Identity();    ///< camera -> the new keyframe's segment's world
+  std::size_t weld_begin = 0;  ///< its inliers in LoopCloser::weld_: [begin, end)
+  std::size_t weld_end = 0;
+  SE3d T_own_c = SE3d::Identity();    ///< camera -> its own segment's world
+  SE3d T_other_c = SE3d::Identity();  ///< camera -> the new keyframe's segment's world
   int inliers = 0;
   double depth = 0.0;              ///< median depth of its inliers in the new frame
   std::vector<double> log_ratios;  ///< log(depth there / depth of its own point), per keypoint
@@ -61,16 +63,16 @@ PlacedFit fit_placed(const std::vector<Placed>& placed, bool metric) {
   std::vector<SE3d> from;
   std::vector<SE3d> to;
   for (const Placed& p : placed) {
-    from.push_back(p.T_from);
-    to.push_back(p.T_to);
+    from.push_back(p.T_own_c);
+    to.push_back(p.T_other_c);
   }
   const Sim3d S_pos = geometry::fit_similarity_to_poses(from, to, !metric);
   const auto n = static_cast<double>(placed.size());
   Eigen::Vector3d p_mean = Eigen::Vector3d::Zero();
   Eigen::Vector3d q_mean = Eigen::Vector3d::Zero();
   for (const Placed& p : placed) {
-    p_mean += p.T_from.translation();
-    q_mean += p.T_to.translation();
+    p_mean += p.T_own_c.translation();
+    q_mean += p.T_other_c.translation();
   }
   p_mean /= n;
   q_mean /= n;
@@ -82,8 +84,8 @@ PlacedFit fit_placed(const std::vector<Placed>& placed, bool metric) {
     double spread2 = 0.0;
     double resid2 = 0.0;
     for (const Placed& p : placed) {
-      spread2 += (p.T_from.translation() - p_mean).squaredNorm();
-      resid2 += (S_pos * p.T_from.translation() - p.T_to.translation()).squaredNorm();
+      spread2 += (p.T_own_c.translation() - p_mean).squaredNorm();
+      resid2 += (S_pos * p.T_own_c.translation() - p.T_other_c.translation()).squaredNorm();
     }
     const double sigma_xyz = std::sqrt(resid2 / std::max(1.0, 3.0 * n - kPositionFitDof));
     const double sigma_pos = spread2 > 0.0 ? sigma_xyz / (S_pos.s * std::sqrt(spread2))
@@ -128,13 +130,15 @@ PlacedFit fit_placed(const std::vector<Placed>& placed, bool metric) {
   // keyframe's median scene depth.
   double worst = -1.0;
   for (std::size_t i = 0; i < placed.size(); ++i) {
-    const SE3d T = geometry::apply_to_pose(f.S, placed[i].T_from);
+    const SE3d T = geometry::apply_to_pose(f.S, placed[i].T_own_c);
     const double rot =
-        kDegPerRad * Eigen::AngleAxisd(T.linear().transpose() * placed[i].T_to.linear()).angle();
-    const double pos =
-        placed[i].depth > 0.0
-            ? kDegPerRad * (T.translation() - placed[i].T_to.translation()).norm() / placed[i].depth
-            : std::numeric_limits<double>::infinity();
+        kDegPerRad *
+        Eigen::AngleAxisd(T.linear().transpose() * placed[i].T_other_c.linear()).angle();
+    const double pos = placed[i].depth > 0.0
+                           ? kDegPerRad *
+                                 (T.translation() - placed[i].T_other_c.translation()).norm() /
+                                 placed[i].depth
+                           : std::numeric_limits<double>::infinity();
     const double e = std::max(rot, pos);
     f.max_residual_deg = std::max(f.max_residual_deg, e);
     if (e > worst) {
@@ -173,6 +177,8 @@ int LoopCloser::sim3_from_relocalized_keyframes(map::KeyframeId kf, map::Keyfram
   std::vector<std::uint32_t> kps_in;
   std::vector<Eigen::Vector3d> X_in;
   std::vector<double> depths;
+  std::vector<map::PointId> pts_in;
+  std::vector<Weld> all_welds;
   for (std::size_t i = 0; i < tries; ++i) {
     // Not enough left to reach merge_min_keyframes: stop (bounds a look that fails).
     if (placed.size() + (tries - i) < need) break;
@@ -197,13 +203,18 @@ int LoopCloser::sim3_from_relocalized_keyframes(map::KeyframeId kf, map::Keyfram
     if (id == cand && !r.success) break;  // the place retrieval found is not this one
     SE3d T_from;
     if (!r.success || !map_.keyframe_pose(id, T_from)) continue;
-    Placed p{id, T_from, r.T_c_w.inverse(), r.inliers, 0.0, {}};
+    Placed p{id, 0, 0, T_from, r.T_c_w.inverse(), r.inliers, 0.0, {}};
     // Depths of the inliers in the new frame, and their ratios to the depths of the points
     // the keyframe's own segment holds for the same keypoints.
     kps_in.clear();
     X_in.clear();
+    pts_in.clear();
     depths.clear();
-    merge_reloc_->last_inliers(kps_in, X_in);
+    merge_reloc_->last_inliers(kps_in, X_in, &pts_in);
+    p.weld_begin = all_welds.size();
+    for (std::size_t k = 0; k < kps_in.size(); ++k)
+      all_welds.push_back(Weld{id, kps_in[k], pts_in[k]});
+    p.weld_end = all_welds.size();
     const SE3d T_from_inv = T_from.inverse();
     map::PointView pv;
     for (std::size_t k = 0; k < kps_in.size(); ++k) {
@@ -237,8 +248,11 @@ int LoopCloser::sim3_from_relocalized_keyframes(map::KeyframeId kf, map::Keyfram
     placed.erase(placed.begin() + static_cast<std::ptrdiff_t>(f.worst));
   }
   if (!ok) return 0;
+  weld_.clear();
   for (const Placed& p : placed) {
     if (p.id == cand) inliers = p.inliers;
+    weld_.insert(weld_.end(), all_welds.begin() + static_cast<std::ptrdiff_t>(p.weld_begin),
+                 all_welds.begin() + static_cast<std::ptrdiff_t>(p.weld_end));
   }
   if (inliers == 0) {  // the candidate itself was dropped from the fit
     for (const Placed& p : placed) inliers = std::max(inliers, p.inliers);
@@ -246,6 +260,35 @@ int LoopCloser::sim3_from_relocalized_keyframes(map::KeyframeId kf, map::Keyfram
   // The candidate's camera from the new keyframe's: through the two worlds.
   S_cand_new = Sim3d::from_se3(T_w_cand.inverse()) * f.S.inverse() * Sim3d::from_se3(T_w_new);
   return static_cast<int>(placed.size());
+}
+
+int LoopCloser::weld(LoopReport& rep) {
+  int merged = 0;
+  std::vector<map::KeyframeId> touched;
+  map::PointView pv;
+  for (const Weld& w : weld_) {
+    // Both sides must be of one segment now (the merge joined them).
+    if (!map_.keyframe_is_live(w.kf) || map_.point_is_bad(w.point) ||
+        !map_.read_point(w.point, pv) ||
+        map_.keyframe_segment(w.kf) != map_.keyframe_segment(pv.ref_keyframe)) {
+      continue;
+    }
+    const map::PointId own = map_.keyframe_point(w.kf, w.kp);
+    if (own == w.point) continue;
+    if (own == map::kNoId) {
+      if (!map_.add_observation(w.point, w.kf, w.kp)) continue;
+      map_.update_point(w.point);
+      ++rep.fused_observations;
+    } else if (map_.point_is_bad(own) || map_.merge_points(w.point, own) < 0) {
+      continue;
+    } else {
+      ++merged;
+    }
+    if (touched.empty() || touched.back() != w.kf) touched.push_back(w.kf);
+  }
+  for (const map::KeyframeId kf : touched) map_.update_covisibility(kf);
+  weld_.clear();
+  return merged;
 }
 
 }  // namespace mer::loop

@@ -39,11 +39,13 @@ Relocalizer::Relocalizer(const RelocalizerOptions& opts, map::Map& map, Keyframe
   point_stamp_.assign(static_cast<std::size_t>(mo.max_points), 0U);
   pts_p_w_.reserve(max_pts);
   pts_desc_.reserve(max_pts);
+  pts_id_.reserve(max_pts);
   kp_best_.resize(nkp);
   kp_point_.resize(nkp);
   corr_X_.resize(nkp);
   corr_uv_.resize(nkp);
   corr_kp_.resize(nkp);
+  corr_pid_.resize(nkp);
   corr_sigma_.resize(nkp);
   corr_mask_.resize(nkp);
   cell_start_.resize(static_cast<std::size_t>(kGridCols * kGridRows) + 1);
@@ -126,6 +128,7 @@ bool Relocalizer::try_keyframe(const RelocQuery& frame, map::KeyframeId id, Relo
   }
   pts_p_w_.clear();
   pts_desc_.clear();
+  pts_id_.clear();
   const std::size_t n_match_pts = gather_points(1 + n_match);
   const int m = match_descriptors(frame, n_match_pts);
   r.matches = m;
@@ -158,12 +161,14 @@ bool Relocalizer::try_keyframe(const RelocQuery& frame, map::KeyframeId id, Relo
 }
 
 std::size_t Relocalizer::last_inliers(std::vector<std::uint32_t>& keypoints,
-                                      std::vector<Eigen::Vector3d>& X_w) const {
+                                      std::vector<Eigen::Vector3d>& X_w,
+                                      std::vector<map::PointId>* points) const {
   std::size_t n = 0;
   for (std::size_t i = 0; i < last_corr_; ++i) {
     if (corr_mask_[i] == 0) continue;
     keypoints.push_back(corr_kp_[i]);
     X_w.push_back(corr_X_[i]);
+    if (points != nullptr) points->push_back(corr_pid_[i]);
     ++n;
   }
   return n;
@@ -182,6 +187,7 @@ std::size_t Relocalizer::gather_points(std::size_t num_kfs) {
       point_stamp_[p] = stamp_;
       pts_p_w_.push_back(v.p_w);
       pts_desc_.push_back(v.descriptor);
+      pts_id_.push_back(p);
     }
   }
   return pts_p_w_.size();
@@ -213,6 +219,7 @@ int Relocalizer::collect_correspondences(const RelocQuery& q) {
     corr_X_[mi] = pts_p_w_[static_cast<std::size_t>(kp_point_[k])];
     corr_uv_[mi] = Eigen::Vector2d(kp.x, kp.y);
     corr_kp_[mi] = static_cast<std::uint32_t>(k);
+    corr_pid_[mi] = pts_id_[static_cast<std::size_t>(kp_point_[k])];
     corr_sigma_[mi] = kp.scale > 0.0F ? kp.scale : 1.0F;
   }
   return m;

@@ -166,10 +166,10 @@ class Relocalizer {
   const RelocalizerOptions& options() const { return opts_; }
 
   /// After a successful spin_once or localize_against: its refined inliers, as the frame's
-  /// keypoint indices and the matched map-points' world positions (appended; the caller's
-  /// vectors may allocate). Returns how many.
-  std::size_t last_inliers(std::vector<std::uint32_t>& keypoints,
-                           std::vector<Eigen::Vector3d>& X_w) const;
+  /// keypoint indices, the matched map-points' world positions and (when given) their ids
+  /// (appended; the caller's vectors may allocate). Returns how many.
+  std::size_t last_inliers(std::vector<std::uint32_t>& keypoints, std::vector<Eigen::Vector3d>& X_w,
+                           std::vector<map::PointId>* points = nullptr) const;
 
  private:
   /// Steps 2-4 for the candidate keyframe `id` (result fields into r); true on success.
@@ -201,6 +201,7 @@ class Relocalizer {
   std::uint32_t stamp_ = 0;
   std::vector<Eigen::Vector3d> pts_p_w_;
   std::vector<features::Descriptor> pts_desc_;
+  std::vector<map::PointId> pts_id_;
   // Per frame keypoint: best point so far (distance, point index).
   std::vector<int> kp_best_;
   std::vector<std::int32_t> kp_point_;
@@ -208,6 +209,7 @@ class Relocalizer {
   std::vector<Eigen::Vector3d> corr_X_;
   std::vector<Eigen::Vector2d> corr_uv_;
   std::vector<std::uint32_t> corr_kp_;  ///< the frame keypoint of each correspondence
+  std::vector<map::PointId> corr_pid_;  ///< and its map-point
   std::size_t last_corr_ = 0;           ///< correspondences of the last successful refinement
   std::vector<float> corr_sigma_;
   std::vector<std::uint8_t> corr_mask_;

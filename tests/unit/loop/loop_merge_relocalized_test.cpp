@@ -28,7 +28,7 @@ struct TwoSegments {
   std::vector<map::KeyframeId> seg0;
   std::vector<map::KeyframeId> seg1;
   std::vector<SE3d> seg1_true;
-  geometry::Sim3d S_1_0;  ///< the truth (segment 0's world, metres) -> segment 1's world
+  geometry::Sim3d sim_1_0;  ///< the truth (segment 0's world, metres) -> segment 1's world
 
   /// `step_m`: segment 1's keyframes are this far apart (sideways; 0: all at the room's middle,
   /// turning on the spot); `with_points`: its first
@@ -37,10 +37,10 @@ struct TwoSegments {
   explicit TwoSegments(double step_m = 0.12, bool with_points = false) {
     std::mt19937_64 rng(11);
     seg0 = world.build(map, 0.0, 10.0, 10, rng);
-    S_1_0.R = Eigen::AngleAxisd(20.0 / kDegPerRad, Eigen::Vector3d(0.3, 1.0, 0.2).normalized())
-                  .toRotationMatrix();
-    S_1_0.t = Eigen::Vector3d(0.4, -0.1, 0.7);
-    S_1_0.s = 0.3;
+    sim_1_0.R = Eigen::AngleAxisd(20.0 / kDegPerRad, Eigen::Vector3d(0.3, 1.0, 0.2).normalized())
+                    .toRotationMatrix();
+    sim_1_0.t = Eigen::Vector3d(0.4, -0.1, 0.7);
+    sim_1_0.s = 0.3;
     for (int k = 0; k < 6; ++k) {
       const double offset = step_m > 0.0 ? -0.3 + step_m * k : 0.0;
       const SE3d T_true = scene::OrbitWorld::pose(40.0 + 2.0 * k, offset);
@@ -48,7 +48,7 @@ struct TwoSegments {
       map::KeyframeInput in;
       in.seq = 500 + static_cast<std::uint64_t>(k) * 5;
       in.t_ns = 20'000'000'000 + static_cast<std::int64_t>(k) * 166'000'000;
-      in.T_w_c = geometry::apply_to_pose(S_1_0, T_true);
+      in.T_w_c = geometry::apply_to_pose(sim_1_0, T_true);
       in.segment = 1;
       in.keypoints = v.keypoints;
       in.descriptors = v.descriptors;
@@ -61,7 +61,7 @@ struct TwoSegments {
         for (std::size_t j = 0; j < v.point.size(); ++j) {
           if (v.point[j] < 0) continue;
           const Eigen::Vector3d p = world.points[static_cast<std::size_t>(v.point[j])];
-          EXPECT_TRUE(map.add_point(S_1_0 * p, r.value(), static_cast<std::uint32_t>(j)).is_ok());
+          EXPECT_TRUE(map.add_point(sim_1_0 * p, r.value(), static_cast<std::uint32_t>(j)).is_ok());
         }
       }
     }
@@ -103,10 +103,20 @@ TEST(LoopMergeRelocalized, ASegmentWithoutMapPointsMergesOntoTheTruth) {
   std::printf(
       "merge from %d keyframes placed: scale %.4f (truth %.4f), worst keyframe %.4f m, "
       "%.3f deg\n",
-      rep.merge_relocalized, rep.merge_similarity.s, 1.0 / s.S_1_0.s, worst_m, worst_deg);
-  EXPECT_NEAR(rep.merge_similarity.s * s.S_1_0.s, 1.0, 0.03);
+      rep.merge_relocalized, rep.merge_similarity.s, 1.0 / s.sim_1_0.s, worst_m, worst_deg);
+  EXPECT_NEAR(rep.merge_similarity.s * s.sim_1_0.s, 1.0, 0.03);
   EXPECT_LT(worst_m, 0.03);
   EXPECT_LT(worst_deg, 0.5);
+  // Welded: the placed keyframes observe the points their relocalization matched, so the
+  // joined map's optimizations hold the two sides together.
+  EXPECT_GT(rep.fused_observations, 100);
+  int observed = 0;
+  for (const map::KeyframeId kf : s.seg1) {
+    for (std::uint32_t k = 0; k < s.map.keyframe_num_keypoints(kf); ++k) {
+      observed += s.map.keyframe_point(kf, k) != map::kNoId ? 1 : 0;
+    }
+  }
+  EXPECT_EQ(observed, rep.fused_observations);
 }
 
 // Keyframes at one place (they only turn): their centres cannot measure the scale, the depths
@@ -118,8 +128,8 @@ TEST(LoopMergeRelocalized, DepthRatiosMeasureTheScaleWhereTheCentresCannot) {
   ASSERT_TRUE(rep.closed);
   EXPECT_EQ(rep.merged_from, 1);
   std::printf("merge from %d keyframes at one place: scale %.4f (truth %.4f)\n",
-              rep.merge_relocalized, rep.merge_similarity.s, 1.0 / s.S_1_0.s);
-  EXPECT_NEAR(rep.merge_similarity.s * s.S_1_0.s, 1.0, 0.01);
+              rep.merge_relocalized, rep.merge_similarity.s, 1.0 / s.sim_1_0.s);
+  EXPECT_NEAR(rep.merge_similarity.s * s.sim_1_0.s, 1.0, 0.01);
   // Without the points, the same keyframes are refused: nothing measures the scale.
   TwoSegments thin(0.0, false);
   EXPECT_FALSE(merge(thin, true).closed);
