@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <utility>
 #include <vector>
 
@@ -20,7 +21,7 @@ namespace {
 using geometry::Sim3d;
 
 /// Degrees per radian.
-constexpr double kDegPerRad = 180.0 / 3.14159265358979323846;
+constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 /// Parameters of a similarity fitted to camera positions with its rotation known (translation,
 /// scale): the residual degrees of freedom of n placed centres are 3 n - kPositionFitDof.
 constexpr double kPositionFitDof = 4.0;
@@ -50,10 +51,10 @@ struct PlacedFit {
   double scale_sigma = 0.0;       ///< standard deviation of log S.s
   bool scales_agree = true;       ///< positions and depth ratios give the same scale
   double max_residual_deg = 0.0;  ///< the worst keyframe's pose error (orientation, position)
+  std::size_t worst = 0;          ///< that keyframe
   double sigma_pos = 0.0;         ///< log-scale standard deviation by the centres
   double sigma_depth = 0.0;       ///< by the depth ratios
   std::size_t ratios = 0;         ///< depth ratios
-  std::size_t worst = 0;          ///< that keyframe
 };
 
 /// Rotation: the chordal mean of the keyframes'; scale: the centres' spread and the depth
@@ -132,10 +133,10 @@ PlacedFit fit_placed(const std::vector<Placed>& placed, bool metric) {
   for (std::size_t i = 0; i < placed.size(); ++i) {
     const SE3d T = geometry::apply_to_pose(f.S, placed[i].T_own_c);
     const double rot =
-        kDegPerRad *
+        kRadToDeg *
         Eigen::AngleAxisd(T.linear().transpose() * placed[i].T_other_c.linear()).angle();
     const double pos = placed[i].depth > 0.0
-                           ? kDegPerRad *
+                           ? kRadToDeg *
                                  (T.translation() - placed[i].T_other_c.translation()).norm() /
                                  placed[i].depth
                            : std::numeric_limits<double>::infinity();
