@@ -284,6 +284,8 @@ EventAuditReport audit_events(const std::string& dir, const pipeline::PipelineSt
     e.found_new = l.found_new;
     e.found_old = l.found_old;
     e.found_usual = l.found_usual;
+    e.rival_inliers = l.rival_inliers;
+    e.inliers = l.inliers;
     e.drift = l.drift;
     e.connected = l.connected;
     e.seq = l.seq;

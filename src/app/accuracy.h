@@ -74,6 +74,8 @@ struct EventAudit {
   double found_new = 0.0;      ///< loop: LoopClosureEvent::found_new
   double found_old = 0.0;      ///< loop: LoopClosureEvent::found_old
   double found_usual = 0.0;    ///< loop: LoopClosureEvent::found_usual
+  int rival_inliers = 0;       ///< loop: LoopClosureEvent::rival_inliers
+  int inliers = 0;             ///< loop: LoopClosureEvent::inliers
   double drift = 0.0;          ///< loop: LoopClosureEvent::drift
   bool connected = false;      ///< loop: LoopClosureEvent::connected
   bool confirmed = false;      ///< relocalization: confirmed on following frames

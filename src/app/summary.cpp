@@ -335,7 +335,7 @@ void write_backend_loop_relocalization(std::ostream& j, const pipeline::Pipeline
     << ", \"excluded_connected\": " << lp.excluded_connected
     << ", \"rejected\": {\"few_matches\": " << lp.rejected.few_matches
     << ", \"few_inliers\": " << lp.rejected.few_inliers << ", \"drift\": " << lp.rejected.drift
-    << ", \"not_found\": " << lp.rejected.not_found
+    << ", \"not_found\": " << lp.rejected.not_found << ", \"ambiguous\": " << lp.rejected.ambiguous
     << ", \"inconsistent\": " << lp.rejected.inconsistent
     << ", \"merge_refused\": " << lp.rejected.merge_refused
     << ", \"relocalized_fit\": " << lp.rejected.relocalized_fit << "}},\n";
@@ -383,7 +383,8 @@ void write_gt_audit(std::ostream& j, const RunInfo& info) {
       }
       if (e.kind == "loop") {
         j << ", \"found_new\": " << num(e.found_new) << ", \"found_old\": " << num(e.found_old)
-          << ", \"found_usual\": " << num(e.found_usual) << ", \"drift\": " << num(e.drift)
+          << ", \"found_usual\": " << num(e.found_usual) << ", \"inliers\": " << e.inliers
+          << ", \"rival_inliers\": " << e.rival_inliers << ", \"drift\": " << num(e.drift)
           << ", \"connected\": " << (e.connected ? "true" : "false");
       }
       j << "}";

@@ -53,6 +53,7 @@ LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float
   best_inlier_.reserve(nk);
   x_new_.reserve(nk);
   x_old_.reserve(nk);
+  lookalike_inliers_.assign(db_.capacity(), 0);
   if (opts_.merge_segments && opts_.merge_by_relocalization) {
     // Deterministic: no time budget (localize_against never retrieves or times out anyway).
     merge_reloc_ = std::make_unique<Relocalizer>(reloc, map_, db_, -1, true);
@@ -180,6 +181,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
   reloc_tried_.clear();
   best_weld_.clear();
+  if (kf < lookalike_inliers_.size()) lookalike_inliers_[kf] = 0;  // ids are reused
   for (const Candidate& c : ranked_) {
     const map::KeyframeId cand = c.id;
     max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
@@ -240,15 +242,18 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
       }
     }
     if (relocalized == 0 && inliers < opts_.min_inliers) continue;
-    if (inliers <= best.inliers) continue;
     // Drift bound: the correction at the new keyframe cannot exceed a fraction of the path
     // travelled since the old one (perceptual aliasing: a similar place far away). Another
     // segment's frame is unrelated: no path, no bound (the checks below still apply).
     const double drift = other_segment ? 0.0 : implied_drift(kf, cand, S_cand_new);
-    if (drift > opts_.max_drift_fraction) {
+    const bool implausible = drift > opts_.max_drift_fraction;
+    if (implausible) {
       MER_LOG_DEBUG("loop: refused, it implies %.1f %% drift", 100.0 * drift);
       ++rep.refused_drift;
       ++totals_.rejected.drift;
+      // A look-alike only if it passes the other checks: then the view is not unique.
+      if (inliers <= rep.lookalike_inliers) continue;
+    } else if (inliers <= best.inliers) {
       continue;
     }
     // Both ways: the similarity must find the surroundings too, not only what the two places
@@ -273,8 +278,19 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
       found = new_ok && old_ok ? found : new_ok ? found_new : old_ok ? found_old : 0.0;
     }
     if (found < opts_.min_found_fraction * usual) {
-      ++rep.refused_found;
-      ++totals_.rejected.not_found;
+      if (!implausible) {
+        ++rep.refused_found;
+        ++totals_.rejected.not_found;
+      }
+      continue;
+    }
+    if (implausible) {
+      // Every check but the drift bound passed: a look-alike of this view elsewhere.
+      rep.lookalike_inliers = inliers;
+      if (kf < lookalike_inliers_.size()) {
+        lookalike_inliers_[kf] = std::max(lookalike_inliers_[kf], inliers);
+      }
+      MER_LOG_DEBUG("loop: a look-alike: %d inliers", inliers);
       continue;
     }
     best = Hypothesis{cand,      m,         inliers,     S_cand_new, drift,
@@ -284,7 +300,34 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     best_old_views_.swap(old_views_);
     best_weld_.swap(weld_);
   }
+  // Ambiguity: a look-alike of this view (found by this keyframe or one that sees what it
+  // sees) about as strong as the loop leaves the place it matched a guess.
+  if (best.cand != map::kNoId && opts_.ambiguity_ratio > 0.0) {
+    best.rival = strongest_lookalike(kf);
+    if (best.rival > 0 && best.rival >= opts_.ambiguity_ratio * best.inliers) {
+      MER_LOG_DEBUG("loop: refused as ambiguous: %d inliers, a look-alike with %d", best.inliers,
+                    best.rival);
+      ++rep.refused_ambiguous;
+      ++totals_.rejected.ambiguous;
+      best = Hypothesis{};
+    }
+  }
   return best;
+}
+
+int LoopCloser::strongest_lookalike(map::KeyframeId kf) const {
+  if (kf >= lookalike_inliers_.size()) return 0;
+  int strongest = lookalike_inliers_[kf];
+  std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
+  const std::size_t nc = map_.covisible_keyframes(kf, covis);
+  for (std::size_t k = 0; k < nc; ++k) {
+    const map::KeyframeId nb = covis[k].id;
+    if (nb < lookalike_inliers_.size() &&
+        covis[k].weight >= static_cast<std::uint32_t>(opts_.min_edge_weight)) {
+      strongest = std::max(strongest, lookalike_inliers_[nb]);
+    }
+  }
+  return strongest;
 }
 
 void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t segment,
@@ -328,6 +371,7 @@ void LoopCloser::decide(map::KeyframeId kf, std::uint64_t serial, std::uint16_t 
       rep.drift = best.drift;
       rep.connected = best.connected;
       rep.found_usual = best.usual;
+      rep.rival_inliers = best.rival;
       if (map_.keyframe_segment(cand) != segment) {
         merge_segments(kf, cand, best.sim, rep);
         rep.merge_relocalized = best.relocalized;
@@ -373,10 +417,10 @@ void LoopCloser::finish_closure(map::KeyframeId kf, std::uint64_t serial,
   totals_.merged_points += static_cast<std::uint64_t>(rep.merged_points);
   totals_.last_loop = rep;
   if (totals_.closures.size() < kMaxLoopEvents) {
-    totals_.closures.push_back(
-        LoopClosureEvent{map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.loop_t_ns,
-                         map_.keyframe_segment(kf), rep.inliers, rep.found_new, rep.found_old,
-                         rep.found_usual, rep.drift, rep.connected, rep.similarity});
+    totals_.closures.push_back(LoopClosureEvent{
+        map_.keyframe_seq(kf), map_.keyframe_t_ns(kf), rep.loop_seq, rep.loop_t_ns,
+        map_.keyframe_segment(kf), rep.inliers, rep.found_new, rep.found_old, rep.found_usual,
+        rep.rival_inliers, rep.drift, rep.connected, rep.similarity});
   }
   totals_.max_full_ba_ms = std::max(totals_.max_full_ba_ms, rep.full_ba_ms);
 }

@@ -89,6 +89,7 @@ struct LoopOptions {
   bool exclude_connected = false;
   double min_time_gap_s = 3.0;
   double min_found_fraction = 0.3;
+  double ambiguity_ratio = 0.5;
   bool merge_segments = true;
   bool merge_by_relocalization = true;
   int merge_relocalize_keyframes = 8;
@@ -172,6 +173,13 @@ struct LoopOptions {
             "covisible older keyframe; a look-alike place matches its copy but not the "
             "surroundings (0: not checked)",
             options::Range<double>{0.0, 1.0});
+    v.field("ambiguity_ratio", ambiguity_ratio,
+            "a loop is refused as ambiguous when the new keyframe, or a keyframe sharing at "
+            "least min_edge_weight points with it, found a similarity to another place that "
+            "passed every check but the drift bound with at least this fraction of the loop's "
+            "inliers: the view looks the same elsewhere (panels repeating along a hall), so the "
+            "place it matched within the bound may be a copy too (0: off)",
+            options::Range<double>{0.0, 1e6});
     v.field("merge_segments", merge_segments,
             "keyframes of other map segments (started after a lost spell) are candidates too, "
             "without the time and keyframe gaps: a loop onto one moves the newer segment into "
@@ -224,11 +232,13 @@ struct LoopOptions {
 
 /// What one spin did.
 struct LoopReport {
-  int candidates = 0;     ///< candidates checked geometrically
-  int pending = 0;        ///< a check passed, waiting for the next keyframes to agree
-  int refused_drift = 0;  ///< checks passed but refused by max_drift_fraction
-  int refused_found = 0;  ///< checks passed but refused by min_found_fraction
-  bool closed = false;    ///< a loop was found and corrected
+  int candidates = 0;         ///< candidates checked geometrically
+  int pending = 0;            ///< a check passed, waiting for the next keyframes to agree
+  int refused_drift = 0;      ///< checks passed but refused by max_drift_fraction
+  int refused_found = 0;      ///< checks passed but refused by min_found_fraction
+  int refused_ambiguous = 0;  ///< the best one refused by ambiguity_ratio
+  int lookalike_inliers = 0;  ///< the strongest look-alike (drift-refused) this keyframe found
+  bool closed = false;        ///< a loop was found and corrected
   map::KeyframeId loop_keyframe = map::kNoId;  ///< the old keyframe it closed on
   std::uint64_t loop_seq = 0;                  ///< its frame
   std::int64_t loop_t_ns = 0;                  ///< its timestamp
@@ -239,6 +249,7 @@ struct LoopReport {
   bool connected = false;      ///< the old keyframe shared points with the new one
   double drift = 0.0;          ///< the correction over the path (max_drift_fraction)
   double found_usual = 0.0;    ///< the new keyframe's share with its own older neighbour
+  int rival_inliers = 0;       ///< the strongest look-alike of its view (ambiguity_ratio)
   geometry::Sim3d similarity;  ///< the loop's similarity: new keyframe's camera -> old one's
   double scale = 1.0;          ///< scale of the correction at the new keyframe
   double shift = 0.0;          ///< translation of the new keyframe by the correction, map units
@@ -278,6 +289,7 @@ struct LoopClosureEvent {
   double found_new = 0.0;       ///< LoopReport::found_new
   double found_old = 0.0;       ///< LoopReport::found_old
   double found_usual = 0.0;     ///< LoopReport::found_usual
+  int rival_inliers = 0;        ///< LoopReport::rival_inliers
   double drift = 0.0;           ///< the correction over the path (max_drift_fraction)
   bool connected = false;       ///< LoopReport::connected
   geometry::Sim3d sim_old_new;  ///< new keyframe's camera -> old one's, old map units
@@ -289,6 +301,7 @@ struct LoopRejections {
   std::uint64_t few_inliers = 0;      ///< no similarity explained min_inliers of them
   std::uint64_t drift = 0;            ///< the correction was implausible (max_drift_fraction)
   std::uint64_t not_found = 0;        ///< not confirmed both ways (min_found_fraction)
+  std::uint64_t ambiguous = 0;        ///< a look-alike elsewhere as strong (ambiguity_ratio)
   std::uint64_t inconsistent = 0;     ///< seen once, not again by the next keyframes
   std::uint64_t merge_refused = 0;    ///< the map refused the merge (a segment discarded meanwhile)
   std::uint64_t relocalized_fit = 0;  ///< merge_by_relocalization, both ways: too few keyframes
@@ -359,6 +372,7 @@ class LoopCloser {
     bool connected = false;  ///< it shared points with the new keyframe
     double usual = 0.0;      ///< usual_found_share of the new keyframe
     int relocalized = 0;     ///< keyframes its similarity was fitted to (0: 3D matches)
+    int rival = 0;           ///< the strongest look-alike of the view (ambiguity_ratio)
   };
   // The steps of spin_once, in order.
   /// Retrieval into ranked_: old keyframes the new one shares points with (by shared points),
@@ -516,6 +530,11 @@ class LoopCloser {
   KeyframeDatabase db_;
   std::unique_ptr<Relocalizer> merge_reloc_;  ///< merge_by_relocalization (db_ unused by it)
   std::vector<std::uint16_t> reloc_tried_;    ///< segments measured so in this check
+  /// Per keyframe, the inliers of the strongest look-alike its checks found: a similarity
+  /// that passed every check but the drift bound (ambiguity_ratio).
+  std::vector<int> lookalike_inliers_;
+  /// The strongest look-alike found by kf or a keyframe sharing min_edge_weight points with it.
+  int strongest_lookalike(map::KeyframeId kf) const;
   /// A placed keyframe's keypoint and the other segment's point it was matched to
   /// (merge_by_relocalization): observations added once the two segments are one.
   struct Weld {

@@ -3,6 +3,7 @@
 // geometric check's guided search on a map whose loop keyframe sees repeated texture.
 #include "loop/loop_closer.h"
 
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -44,7 +45,7 @@ TEST(LoopOptions, EveryFieldHasADocLine) {
   testing::DocCheck v;
   LoopOptions o;
   o.visit(v);
-  EXPECT_EQ(v.fields, 30);
+  EXPECT_EQ(v.fields, 31);
 }
 
 // An old keyframe A and, after a detour, a new keyframe B at nearly the same place, whose map
@@ -145,13 +146,18 @@ struct LoopScene {
   }
 };
 
-LoopReport close_loop(int guided_min_inliers) {
+// LoopScene's loop checked with options o (candidates 2 keyframes apart).
+LoopReport close_true_loop(LoopOptions o) {
   LoopScene scene;
-  LoopOptions o;
   o.min_keyframe_gap = 2;
-  o.guided_min_inliers = guided_min_inliers;
   LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
   return closer.spin_once(scene.b, scene.K);
+}
+
+LoopReport close_loop(int guided_min_inliers) {
+  LoopOptions o;
+  o.guided_min_inliers = guided_min_inliers;
+  return close_true_loop(o);
 }
 
 TEST(LoopCloser, GuidedSearchFindsTheRepeatedTextureMatches) {
@@ -376,15 +382,131 @@ TEST(LoopCloser, LookAlikeIsRefusedWhenNotFoundBothWays) {
     }
   }
   // The true loop passes the same check: its views are found both ways.
-  LoopScene scene;
   LoopOptions o;
-  o.min_keyframe_gap = 2;
   o.min_found_fraction = 0.5;
-  LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
-  const LoopReport r = closer.spin_once(scene.b, scene.K);
+  const LoopReport r = close_true_loop(o);
   ASSERT_TRUE(r.closed);
   EXPECT_GT(r.found_new, 0.9);
   EXPECT_GT(r.found_old, 0.9);
+}
+
+// Panels repeating along a hall every kPeriod m: keyframe A faces panel -4 and C panel 1; a
+// detour of kDetour m away from the wall follows; then B, truly facing panel 3 (never seen
+// before), with B0 just before it. Every panel is the same, so B's view matches A's and C's
+// exactly, each by a similarity that puts B where that keyframe was. The map's poses are
+// exact, so both are wrong: A's asks for a 35 m correction over 85 m of path (refused by the
+// drift bound), C's for 10 m over 60 m (within it), and both explain all of B's points.
+struct RepeatedPanelsScene {
+  static constexpr int kPanelPoints = 90;
+  static constexpr double kPeriod = 5.0;
+  map::Map map;
+  geometry::Pinhole K{400.0, 400.0, 320.0, 240.0};
+  map::KeyframeId a = map::kNoId;
+  map::KeyframeId c = map::kNoId;
+  map::KeyframeId b = map::kNoId;
+
+  static map::MapOptions options() {
+    map::MapOptions o = LoopScene::options();
+    o.max_points = 1024;
+    return o;
+  }
+
+  RepeatedPanelsScene() : map(options()) {
+    std::mt19937_64 rng(5);
+    std::uniform_real_distribution<double> px(-1.2, 1.2);
+    std::uniform_real_distribution<double> py(-0.9, 0.9);
+    auto random_desc = [&] { return features::Descriptor{rng(), rng(), rng(), rng()}; };
+    std::vector<Eigen::Vector3d> panel;  // a panel 3 m ahead, in the frame of a camera facing it
+    std::vector<features::Descriptor> panel_desc;
+    for (int i = 0; i < kPanelPoints; ++i) {
+      panel.emplace_back(px(rng), py(rng), 3.0);
+      panel_desc.push_back(random_desc());
+    }
+    std::vector<map::PointId> last_points;
+    std::vector<Eigen::Vector3d> last_pts_w;
+    std::vector<features::Descriptor> last_desc;
+    // A keyframe facing the panel at x (the first `shown` of its points seen), or, panel
+    // false, a view of random texture elsewhere.
+    auto view = [&](std::uint64_t seq, std::uint64_t t_ms, const SE3d& T_w_c, bool facing_panel,
+                    int shown) {
+      last_pts_w.clear();
+      last_desc.clear();
+      for (int i = 0; i < shown; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        last_pts_w.push_back(T_w_c *
+                             (facing_panel ? panel[k] : Eigen::Vector3d(px(rng), py(rng), 3.0)));
+        features::Descriptor d = facing_panel ? panel_desc[k] : random_desc();
+        if (facing_panel && seq > 7) d[0] ^= 0x11ULL;  // another view's noise
+        last_desc.push_back(d);
+      }
+      const map::KeyframeId id =
+          scene::add_view(map, K, T_w_c, T_w_c, last_pts_w, last_desc, seq, t_ms);
+      last_points.clear();
+      for (std::size_t i = 0; i < last_pts_w.size(); ++i) {
+        const auto p = map.add_point(last_pts_w[i], id, static_cast<std::uint32_t>(i));
+        EXPECT_TRUE(p.is_ok());
+        last_points.push_back(p.is_ok() ? p.value() : map::kNoId);
+      }
+      return id;
+    };
+    const auto at = [](double x, double z) { return SE3d(Eigen::Translation3d(x, 0.0, z)); };
+    a = view(0, 0, at(-4.0 * kPeriod, 0.0), true, kPanelPoints);
+    c = view(1, 1000, at(kPeriod, 0.0), true, kPanelPoints);
+    // The detour: 25 m back from the wall, 10 m along, 25 m forward again.
+    const std::array<Eigen::Vector2d, 6> detour{{{kPeriod, -12.5},
+                                                 {kPeriod, -25.0},
+                                                 {2.0 * kPeriod, -25.0},
+                                                 {3.0 * kPeriod, -25.0},
+                                                 {3.0 * kPeriod, -15.0},
+                                                 {3.0 * kPeriod, -5.0}}};
+    std::uint64_t seq = 2;
+    for (const Eigen::Vector2d& xz : detour) {
+      (void)view(seq, 1000 + 200 * seq, at(xz.x(), xz.y()), false, kPanelPoints);
+      ++seq;
+    }
+    const map::KeyframeId b0 = view(seq, 5900, at(3.0 * kPeriod, 0.0), true, kPanelPoints);
+    (void)b0;
+    b = scene::add_view(map, K, at(3.0 * kPeriod + 0.05, 0.0), at(3.0 * kPeriod + 0.05, 0.0),
+                        last_pts_w, last_desc, seq + 1, 6000);
+    for (std::size_t i = 0; i < last_points.size(); ++i) {
+      EXPECT_TRUE(map.add_observation(last_points[i], b, static_cast<std::uint32_t>(i)));
+    }
+    map.update_covisibility(b);
+  }
+};
+
+TEST(LoopCloser, AmbiguousPlaceIsRefusedWhenALookAlikeElsewhereIsAsStrong) {
+  for (const double ratio : {0.0, 0.5}) {
+    RepeatedPanelsScene scene;
+    LoopOptions o;
+    o.min_keyframe_gap = 2;
+    o.ambiguity_ratio = ratio;
+    LoopCloser closer(o, scene.map, {1.0F}, false, nullptr);
+    const LoopReport r = closer.spin_once(scene.b, scene.K);
+    std::printf(
+        "repeated panels, ambiguity_ratio %.1f: closed %d (onto %s, %d inliers), "
+        "look-alike %d inliers, drift refusals %d, ambiguous %d\n",
+        ratio, r.closed ? 1 : 0, r.loop_keyframe == scene.c ? "C" : "other", r.inliers,
+        r.lookalike_inliers, r.refused_drift, r.refused_ambiguous);
+    // A's similarity passes every check but the drift bound: a look-alike of B's view.
+    EXPECT_GE(r.refused_drift, 1);
+    EXPECT_GE(r.lookalike_inliers, RepeatedPanelsScene::kPanelPoints - 9);
+    if (ratio == 0.0) {
+      // Unchecked, C's copy of the panel closes a loop 10 m off.
+      ASSERT_TRUE(r.closed);
+      EXPECT_EQ(r.loop_keyframe, scene.c);
+      EXPECT_EQ(r.rival_inliers, 0);
+    } else {
+      EXPECT_FALSE(r.closed);
+      EXPECT_EQ(r.refused_ambiguous, 1);
+      EXPECT_EQ(closer.totals().rejected.ambiguous, 1U);
+    }
+  }
+  // A true loop without a look-alike closes with the check on (the default).
+  ASSERT_GT(LoopOptions{}.ambiguity_ratio, 0.0);
+  const LoopReport r = close_true_loop(LoopOptions{});
+  EXPECT_TRUE(r.closed);
+  EXPECT_EQ(r.refused_ambiguous, 0);
 }
 
 }  // namespace
