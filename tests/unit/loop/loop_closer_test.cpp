@@ -509,5 +509,64 @@ TEST(LoopCloser, AmbiguousPlaceIsRefusedWhenALookAlikeElsewhereIsAsStrong) {
   EXPECT_EQ(r.refused_ambiguous, 0);
 }
 
+// A straight drive past panels repeating every 5 m (a road's identical facades): a keyframe
+// every 2.5 m, every second one facing a panel, all of them exact. Each panel view matches
+// every panel seen before, by a similarity that puts the camera back where that one was:
+// look-alikes, which the drift bound refuses (the correction is the whole path since). The
+// drive never comes back, so no loop may close.
+TEST(LoopCloser, AStraightDrivePastRepeatedPanelsClosesNoLoop) {
+  constexpr int kPanelPoints = 90;
+  constexpr int kKeyframes = 24;  // 57.5 m
+  map::MapOptions mo = LoopScene::options();
+  mo.max_keyframes = 32;
+  mo.max_points = 4096;
+  map::Map map(mo);
+  const geometry::Pinhole K{400.0, 400.0, 320.0, 240.0};
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> px(-1.2, 1.2);
+  std::uniform_real_distribution<double> py(-0.9, 0.9);
+  std::vector<Eigen::Vector3d> panel;
+  std::vector<features::Descriptor> panel_desc;
+  for (int i = 0; i < kPanelPoints; ++i) {
+    panel.emplace_back(px(rng), py(rng), 3.0);
+    panel_desc.push_back({rng(), rng(), rng(), rng()});
+  }
+  LoopOptions o;
+  o.min_keyframe_gap = 2;
+  LoopCloser closer(o, map, {1.0F}, false, nullptr);
+  int closed = 0;
+  int refused_drift = 0;
+  for (int k = 0; k < kKeyframes; ++k) {
+    const SE3d T_w_c(Eigen::Translation3d(2.5 * k, 0.0, 0.0));
+    std::vector<Eigen::Vector3d> pts_w;
+    std::vector<features::Descriptor> desc;
+    for (int i = 0; i < kPanelPoints; ++i) {
+      const auto u = static_cast<std::size_t>(i);
+      const bool facing_panel = k % 2 == 0;
+      pts_w.push_back(T_w_c * (facing_panel ? panel[u] : Eigen::Vector3d(px(rng), py(rng), 3.0)));
+      features::Descriptor d =
+          facing_panel ? panel_desc[u] : features::Descriptor{rng(), rng(), rng(), rng()};
+      if (facing_panel) d[static_cast<std::size_t>(k / 2) % 4] ^= 0x101ULL;  // view noise
+      desc.push_back(d);
+    }
+    const auto seq = static_cast<std::uint64_t>(k);
+    const map::KeyframeId kf = scene::add_view(map, K, T_w_c, T_w_c, pts_w, desc, seq, 500 * seq);
+    for (std::size_t i = 0; i < pts_w.size(); ++i) {
+      ASSERT_TRUE(map.add_point(pts_w[i], kf, static_cast<std::uint32_t>(i)).is_ok());
+    }
+    const LoopReport r = closer.spin_once(kf, K);
+    closed += r.closed ? 1 : 0;
+    refused_drift += r.refused_drift;
+  }
+  std::printf(
+      "straight drive past repeated panels: %d loops closed, %d look-alikes refused by "
+      "the drift bound\n",
+      closed, refused_drift);
+  EXPECT_EQ(closed, 0);
+  EXPECT_EQ(closer.totals().loops_closed, 0U);
+  // The look-alikes were found and refused, not missed.
+  EXPECT_GT(refused_drift, 0);
+}
+
 }  // namespace
 }  // namespace mer::loop
