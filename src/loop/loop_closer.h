@@ -21,7 +21,10 @@
 ///     in both keyframes (`refine_iterations`; the points' depth, which the 3D fit weighs,
 ///     is their least certain part). `min_inliers` must agree; a loop implying more than
 ///     `max_drift_fraction` of the path since the candidate is refused (a similar place
-///     elsewhere), and `consistent_checks` keyframes in a row must find the same place. A
+///     elsewhere); one that passes every check but that bound is a look-alike of the view, and
+///     a loop weaker than 1 / `ambiguity_ratio` times the strongest look-alike of its view
+///     (found by the new keyframe or a keyframe seeing the same) is refused as ambiguous; and
+///     `consistent_checks` keyframes in a row must find the same place. A
 ///     candidate of another map segment whose map-points are too few for this (a segment that
 ///     was being lost) is measured from its keyframes instead (`merge_by_relocalization`,
 ///     loop_merge_relocalized.cpp): they are relocalized against the new keyframe's local map
