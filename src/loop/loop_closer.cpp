@@ -53,7 +53,7 @@ LoopCloser::LoopCloser(const LoopOptions& opts, map::Map& map, std::vector<float
   best_inlier_.reserve(nk);
   x_new_.reserve(nk);
   x_old_.reserve(nk);
-  lookalike_inliers_.assign(db_.capacity(), 0);
+  lookalike_.assign(db_.capacity(), Lookalike{});
   if (opts_.merge_segments && opts_.merge_by_relocalization) {
     // Deterministic: no time budget (localize_against never retrieves or times out anyway).
     merge_reloc_ = std::make_unique<Relocalizer>(reloc, map_, db_, -1, true);
@@ -181,7 +181,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   double usual = -1.0;  // usual_found_share(kf), computed when first needed
   reloc_tried_.clear();
   best_weld_.clear();
-  if (kf < lookalike_inliers_.size()) lookalike_inliers_[kf] = 0;  // ids are reused
+  if (kf < lookalike_.size()) lookalike_[kf] = Lookalike{map_.keyframe_generation(kf), 0};
   for (const Candidate& c : ranked_) {
     const map::KeyframeId cand = c.id;
     max_scale_ = map_.keyframe_segment(cand) != segment ? kMaxMergeScale : kMaxLoopScale;
@@ -287,8 +287,8 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     if (implausible) {
       // Every check but the drift bound passed: a look-alike of this view elsewhere.
       rep.lookalike_inliers = inliers;
-      if (kf < lookalike_inliers_.size()) {
-        lookalike_inliers_[kf] = std::max(lookalike_inliers_[kf], inliers);
+      if (kf < lookalike_.size()) {
+        lookalike_[kf].inliers = std::max(lookalike_[kf].inliers, inliers);
       }
       MER_LOG_DEBUG("loop: a look-alike: %d inliers", inliers);
       continue;
@@ -316,15 +316,18 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
 }
 
 int LoopCloser::strongest_lookalike(map::KeyframeId kf) const {
-  if (kf >= lookalike_inliers_.size()) return 0;
-  int strongest = lookalike_inliers_[kf];
+  // A slot counts only for the keyframe it was recorded for.
+  const auto of = [&](map::KeyframeId id) {
+    return id < lookalike_.size() && lookalike_[id].generation == map_.keyframe_generation(id)
+               ? lookalike_[id].inliers
+               : 0;
+  };
+  int strongest = of(kf);
   std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};
   const std::size_t nc = map_.covisible_keyframes(kf, covis);
   for (std::size_t k = 0; k < nc; ++k) {
-    const map::KeyframeId nb = covis[k].id;
-    if (nb < lookalike_inliers_.size() &&
-        covis[k].weight >= static_cast<std::uint32_t>(opts_.min_edge_weight)) {
-      strongest = std::max(strongest, lookalike_inliers_[nb]);
+    if (covis[k].weight >= static_cast<std::uint32_t>(opts_.min_edge_weight)) {
+      strongest = std::max(strongest, of(covis[k].id));
     }
   }
   return strongest;

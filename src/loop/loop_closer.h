@@ -533,9 +533,14 @@ class LoopCloser {
   KeyframeDatabase db_;
   std::unique_ptr<Relocalizer> merge_reloc_;  ///< merge_by_relocalization (db_ unused by it)
   std::vector<std::uint16_t> reloc_tried_;    ///< segments measured so in this check
-  /// Per keyframe, the inliers of the strongest look-alike its checks found: a similarity
-  /// that passed every check but the drift bound (ambiguity_ratio).
-  std::vector<int> lookalike_inliers_;
+  /// Per keyframe slot, the inliers of the strongest look-alike its checks found (a
+  /// similarity that passed every check but the drift bound, ambiguity_ratio), and the slot's
+  /// occupant they are of (ids are reused; a keyframe the loop thread skipped is never reset).
+  struct Lookalike {
+    map::Generation generation = map::kNoGeneration;
+    int inliers = 0;
+  };
+  std::vector<Lookalike> lookalike_;
   /// The strongest look-alike found by kf or a keyframe sharing min_edge_weight points with it.
   int strongest_lookalike(map::KeyframeId kf) const;
   /// A placed keyframe's keypoint and the other segment's point it was matched to
