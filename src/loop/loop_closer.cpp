@@ -287,8 +287,10 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
     if (implausible) {
       // Every check but the drift bound passed: a look-alike of this view elsewhere.
       rep.lookalike_inliers = inliers;
-      if (kf < lookalike_.size()) {
-        lookalike_[kf].inliers = std::max(lookalike_[kf].inliers, inliers);
+      if (kf < lookalike_.size() && inliers > lookalike_[kf].inliers) {
+        lookalike_[kf].inliers = inliers;
+        lookalike_[kf].place = cand;
+        lookalike_[kf].place_generation = map_.keyframe_generation(cand);
       }
       MER_LOG_DEBUG("loop: a look-alike: %d inliers", inliers);
       continue;
@@ -303,7 +305,7 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   // Ambiguity: a look-alike of this view (found by this keyframe or one that sees what it
   // sees) about as strong as the loop leaves the place it matched a guess.
   if (best.cand != map::kNoId && opts_.ambiguity_ratio > 0.0) {
-    best.rival = strongest_lookalike(kf);
+    best.rival = strongest_lookalike(kf, best.cand);
     if (best.rival > 0 && best.rival >= opts_.ambiguity_ratio * best.inliers) {
       MER_LOG_DEBUG("loop: refused as ambiguous: %d inliers, a look-alike with %d", best.inliers,
                     best.rival);
@@ -315,12 +317,20 @@ LoopCloser::Hypothesis LoopCloser::check_candidates(map::KeyframeId kf, std::uin
   return best;
 }
 
-int LoopCloser::strongest_lookalike(map::KeyframeId kf) const {
-  // A slot counts only for the keyframe it was recorded for.
+int LoopCloser::strongest_lookalike(map::KeyframeId kf, map::KeyframeId loop_cand) const {
+  // A slot counts only for the keyframe it was recorded for, and only when its look-alike
+  // is of another place than the loop's.
   const auto of = [&](map::KeyframeId id) {
-    return id < lookalike_.size() && lookalike_[id].generation == map_.keyframe_generation(id)
-               ? lookalike_[id].inliers
-               : 0;
+    if (id >= lookalike_.size()) return 0;
+    const Lookalike& l = lookalike_[id];
+    if (l.inliers == 0 || l.generation != map_.keyframe_generation(id) ||
+        l.place_generation != map_.keyframe_generation(l.place)) {
+      return 0;
+    }
+    const bool same_place = l.place == loop_cand ||
+                            map_.covisibility_weight(l.place, loop_cand) > 0 ||
+                            map_.covisibility_weight(loop_cand, l.place) > 0;
+    return same_place ? 0 : l.inliers;
   };
   int strongest = of(kf);
   std::array<map::CovisibleKeyframe, kMaxCovisible> covis{};

@@ -23,7 +23,8 @@
 ///     `max_drift_fraction` of the path since the candidate is refused (a similar place
 ///     elsewhere); one that passes every check but that bound is a look-alike of the view, and
 ///     a loop weaker than 1 / `ambiguity_ratio` times the strongest look-alike of its view
-///     (found by the new keyframe or a keyframe seeing the same) is refused as ambiguous; and
+///     (found by the new keyframe or a keyframe seeing the same, of another place than the
+///     loop's) is refused as ambiguous; and
 ///     `consistent_checks` keyframes in a row must find the same place. A
 ///     candidate of another map segment whose map-points are too few for this (a segment that
 ///     was being lost) is measured from its keyframes instead (`merge_by_relocalization`,
@@ -178,10 +179,11 @@ struct LoopOptions {
             options::Range<double>{0.0, 1.0});
     v.field("ambiguity_ratio", ambiguity_ratio,
             "a loop is refused as ambiguous when the new keyframe, or a keyframe sharing at "
-            "least min_edge_weight points with it, found a similarity to another place that "
-            "passed every check but the drift bound with at least this fraction of the loop's "
-            "inliers: the view looks the same elsewhere (panels repeating along a hall), so the "
-            "place it matched within the bound may be a copy too (0: off)",
+            "least min_edge_weight points with it, found a similarity to another place (not the "
+            "loop's old keyframe nor one sharing points with it) that passed every check but "
+            "the drift bound with at least this fraction of the loop's inliers: the view looks "
+            "the same elsewhere (panels repeating along a hall), so the place it matched within "
+            "the bound may be a copy too (0: off)",
             options::Range<double>{0.0, 1e6});
     v.field("merge_segments", merge_segments,
             "keyframes of other map segments (started after a lost spell) are candidates too, "
@@ -533,16 +535,21 @@ class LoopCloser {
   KeyframeDatabase db_;
   std::unique_ptr<Relocalizer> merge_reloc_;  ///< merge_by_relocalization (db_ unused by it)
   std::vector<std::uint16_t> reloc_tried_;    ///< segments measured so in this check
-  /// Per keyframe slot, the inliers of the strongest look-alike its checks found (a
-  /// similarity that passed every check but the drift bound, ambiguity_ratio), and the slot's
-  /// occupant they are of (ids are reused; a keyframe the loop thread skipped is never reset).
+  /// Per keyframe slot, the strongest look-alike its checks found (a similarity that passed
+  /// every check but the drift bound, ambiguity_ratio): its inliers and the old keyframe it
+  /// matched; and the slot's occupant they are of (ids are reused; a keyframe the loop thread
+  /// skipped is never reset).
   struct Lookalike {
     map::Generation generation = map::kNoGeneration;
     int inliers = 0;
+    map::KeyframeId place = map::kNoId;  ///< the old keyframe the look-alike matched
+    map::Generation place_generation = map::kNoGeneration;
   };
   std::vector<Lookalike> lookalike_;
-  /// The strongest look-alike found by kf or a keyframe sharing min_edge_weight points with it.
-  int strongest_lookalike(map::KeyframeId kf) const;
+  /// The strongest look-alike found by kf or a keyframe sharing min_edge_weight points with
+  /// it, of another place than `loop_cand` (neither it nor a keyframe sharing points with it:
+  /// a loop implying too much drift onto the loop's own place is no rival of it).
+  int strongest_lookalike(map::KeyframeId kf, map::KeyframeId loop_cand) const;
   /// A placed keyframe's keypoint and the other segment's point it was matched to
   /// (merge_by_relocalization): observations added once the two segments are one.
   struct Weld {

@@ -568,5 +568,87 @@ TEST(LoopCloser, AStraightDrivePastRepeatedPanelsClosesNoLoop) {
   EXPECT_GT(refused_drift, 0);
 }
 
+// A drift-refused match onto the loop's own place is no look-alike of it. A and A2 see one
+// place from the same pose (A2 observes A's points, made after a detour); B sees it again
+// later from a drifted pose (LoopScene's drift). Onto A the correction is 3 % of the 8 m
+// path since A: a loop. Onto A2 it is most of the 0.3 m since A2: refused by the drift bound,
+// with as many inliers. Counted as a rival, A2 would refuse the loop onto A.
+TEST(LoopCloser, ADriftRefusedMatchOntoTheLoopsOwnPlaceIsNoRival) {
+  map::MapOptions mo = LoopScene::options();
+  mo.max_points = 1024;
+  map::Map map(mo);
+  const geometry::Pinhole K{400.0, 400.0, 320.0, 240.0};
+  std::mt19937_64 rng(13);
+  std::uniform_real_distribution<double> ux(-1.5, 1.5);
+  std::uniform_real_distribution<double> uy(-1.0, 1.0);
+  std::uniform_real_distribution<double> uz(2.0, 4.0);
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<features::Descriptor> desc;
+  for (int i = 0; i < LoopScene::kPoints; ++i) {
+    pts.emplace_back(ux(rng), uy(rng), uz(rng));
+    desc.push_back({rng(), rng(), rng(), rng()});
+  }
+  const auto elsewhere = [&] {
+    std::vector<features::Descriptor> other;
+    for (int i = 0; i < LoopScene::kPoints; ++i) other.push_back({rng(), rng(), rng(), rng()});
+    return other;
+  };
+  const auto at = [](double x) { return SE3d(Eigen::Translation3d(x, 0.0, 0.0)); };
+  const map::KeyframeId a = scene::add_view(map, K, at(0.0), at(0.0), pts, desc, 0, 0);
+  std::vector<map::PointId> a_points;
+  for (int i = 0; i < LoopScene::kPoints; ++i) {
+    const auto pr =
+        map.add_point(pts[static_cast<std::size_t>(i)], a, static_cast<std::uint32_t>(i));
+    ASSERT_TRUE(pr.is_ok());
+    a_points.push_back(pr.value());
+  }
+  std::uint64_t seq = 1;
+  for (const double x : {1.0, 2.0, 3.0, 4.0}) {  // out and back: 8 m
+    (void)scene::add_view(map, K, at(x), at(x), pts, elsewhere(), seq, 1000 * seq);
+    ++seq;
+  }
+  const map::KeyframeId a2 = scene::add_view(map, K, at(0.0), at(0.0), pts, desc, seq, 4900);
+  for (std::size_t i = 0; i < a_points.size(); ++i) {
+    ASSERT_TRUE(map.add_observation(a_points[i], a2, static_cast<std::uint32_t>(i)));
+  }
+  map.update_covisibility(a2);
+  ++seq;
+  for (const double x : {0.1, 0.2}) {  // two keyframes looking elsewhere, 10 cm apart
+    (void)scene::add_view(map, K, at(x), at(x), pts, elsewhere(), seq, 5000 + 1000 * (seq - 5));
+    ++seq;
+  }
+  // B: truly 10 cm from A, stored with LoopScene's drift (yaw 3 deg, a shift, scale 1.04).
+  geometry::Sim3d S;
+  S.R = Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  S.t = Eigen::Vector3d(0.05, 0.02, -0.03);
+  S.s = LoopScene::kDrift;
+  const SE3d T_w_b_true = at(LoopScene::kBaseline);
+  SE3d T_w_b = SE3d::Identity();
+  T_w_b.linear() = S.R * T_w_b_true.linear();
+  T_w_b.translation() = S * T_w_b_true.translation();
+  std::vector<features::Descriptor> desc_b = desc;
+  for (features::Descriptor& d : desc_b) d[0] ^= 0x11ULL;
+  const map::KeyframeId b = scene::add_view(map, K, T_w_b_true, T_w_b, pts, desc_b, seq, 9000);
+  for (int i = 0; i < LoopScene::kPoints; ++i) {
+    ASSERT_TRUE(
+        map.add_point(S * pts[static_cast<std::size_t>(i)], b, static_cast<std::uint32_t>(i))
+            .is_ok());
+  }
+  LoopOptions o;
+  o.min_keyframe_gap = 2;
+  LoopCloser closer(o, map, {1.0F}, false, nullptr);
+  const LoopReport r = closer.spin_once(b, K);
+  std::printf(
+      "own place: closed %d onto %s, drift refusals %d, look-alike %d inliers, "
+      "ambiguous %d\n",
+      r.closed ? 1 : 0, r.loop_keyframe == a ? "A" : "other", r.refused_drift, r.lookalike_inliers,
+      r.refused_ambiguous);
+  EXPECT_GE(r.refused_drift, 1);  // onto A2
+  EXPECT_GT(r.lookalike_inliers, 0);
+  EXPECT_TRUE(r.closed);
+  EXPECT_EQ(r.loop_keyframe, a);
+  EXPECT_EQ(r.refused_ambiguous, 0);
+}
+
 }  // namespace
 }  // namespace mer::loop
