@@ -48,6 +48,7 @@ struct Frame {
   std::int64_t t_ns = 0;             ///< capture time, ns
   std::int64_t t_ready_ns = 0;       ///< monotonic time the frame was complete in its buffer
   std::int64_t produce_ns = 0;       ///< time the source spent producing it (convert/render), ns
+  std::int64_t produce_cpu_ns = 0;   ///< CPU time of that work (on whichever thread did it), ns
   cv::Mat gray;                      ///< 8-bit single-channel image (CV_8UC1)
   cv::Mat depth;                     ///< metres (CV_32FC1); empty when !has_depth
   bool has_ground_truth = false;     ///< ground truth available for this frame

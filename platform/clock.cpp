@@ -10,6 +10,24 @@ std::int64_t monotonic_now_ns() noexcept {
   return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000LL + ts.tv_nsec;
 }
 
+namespace {
+
+std::int64_t read_ns(clockid_t id) noexcept {
+  timespec ts{};
+  if (::clock_gettime(id, &ts) != 0) return 0;
+  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000LL + ts.tv_nsec;
+}
+
+}  // namespace
+
+std::int64_t process_cpu_ns() noexcept {
+  return read_ns(CLOCK_PROCESS_CPUTIME_ID);
+}
+
+std::int64_t thread_cpu_ns() noexcept {
+  return read_ns(CLOCK_THREAD_CPUTIME_ID);
+}
+
 Clock::~Clock() = default;
 
 std::int64_t MonotonicClock::now_ns() const {

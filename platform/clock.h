@@ -10,6 +10,14 @@ namespace mer::platform {
 /// vDSO call, no syscall, no allocation: safe on real-time threads.
 std::int64_t monotonic_now_ns() noexcept;
 
+/// CPU time consumed so far by the whole process (every thread), ns (CLOCK_PROCESS_CPUTIME_ID;
+/// a system call on most kernels, no allocation). 0 when the clock is unavailable.
+std::int64_t process_cpu_ns() noexcept;
+
+/// CPU time consumed so far by the calling thread, ns (CLOCK_THREAD_CPUTIME_ID). 0 when the
+/// clock is unavailable.
+std::int64_t thread_cpu_ns() noexcept;
+
 /// Milliseconds of the monotonic clock since `t0_ns` (a monotonic_now_ns() reading).
 inline double elapsed_ms(std::int64_t t0_ns) noexcept {
   constexpr double kNsToMs = 1e-6;

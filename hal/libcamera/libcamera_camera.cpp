@@ -248,6 +248,7 @@ class LibcameraCamera final : public CameraSource {
         result = AcquireStatus::kPoolEmpty;
       } else {
         const std::int64_t t0 = platform::monotonic_now_ns();
+        const std::int64_t cpu0 = platform::thread_cpu_ns();
         const ImageLayout layout{h->gray.cols, h->gray.rows, static_cast<int>(stride_)};
         if (!convert_to_gray(packed_, planes_[index], layout, h->gray)) {
           ++frame_errors_;  // buffer shorter than the configured layout: drop and count
@@ -259,6 +260,7 @@ class LibcameraCamera final : public CameraSource {
           h->t_ns = static_cast<std::int64_t>(md.timestamp);
           h->t_ready_ns = platform::monotonic_now_ns();
           h->produce_ns = h->t_ready_ns - t0;
+          h->produce_cpu_ns = platform::thread_cpu_ns() - cpu0;
           out = std::move(h);
         }
       }

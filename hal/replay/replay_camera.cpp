@@ -115,6 +115,7 @@ void ReplayCamera::prefetch_loop() {
     Status status;
     LoadStatus ls = LoadStatus::kError;
     const std::int64_t t0 = platform::monotonic_now_ns();
+    const std::int64_t cpu0 = platform::thread_cpu_ns();
     try {
       ls = loader_->load(i, *slot, status);
     } catch (const std::exception& e) {
@@ -126,6 +127,7 @@ void ReplayCamera::prefetch_loop() {
       case LoadStatus::kOk:
         consecutive_skips = 0;
         slot->produce_ns = platform::monotonic_now_ns() - t0;
+        slot->produce_cpu_ns = platform::thread_cpu_ns() - cpu0;
         if (!push(Item{slot.release_raw(), ItemKind::kFrame})) return;
         break;
       case LoadStatus::kSkip:

@@ -565,6 +565,7 @@ AcquireStatus SyntheticCamera::acquire(FrameHandle& out, std::int64_t timeout_ns
     if (wait > 0) std::this_thread::sleep_for(std::chrono::nanoseconds(wait));
   }
   const std::int64_t t_work = platform::monotonic_now_ns();
+  const std::int64_t cpu_work = platform::thread_cpu_ns();
   FrameHandle h = pool_->acquire();
   if (!h) return AcquireStatus::kPoolEmpty;
   Frame& f = *h;
@@ -590,6 +591,7 @@ AcquireStatus SyntheticCamera::acquire(FrameHandle& out, std::int64_t timeout_ns
   ++next_seq_;
   f.t_ready_ns = platform::monotonic_now_ns();
   f.produce_ns = f.t_ready_ns - t_work;
+  f.produce_cpu_ns = platform::thread_cpu_ns() - cpu_work;
   out = std::move(h);
   return AcquireStatus::kFrame;
 }

@@ -591,6 +591,7 @@ AcquireStatus V4l2Camera::acquire(FrameHandle& out, std::int64_t timeout_ns) {
       return stream_error(errno_error("VIDIOC_DQBUF", err));
     }
     const std::int64_t t_dq = platform::monotonic_now_ns();
+    const std::int64_t cpu_dq = platform::thread_cpu_ns();
     last_progress_ns_ = t_dq;
     if (b.index >= buffer_count_) {
       return stream_error(input_error("v4l2:" + device_ + ": VIDIOC_DQBUF returned buffer index " +
@@ -641,6 +642,7 @@ AcquireStatus V4l2Camera::acquire(FrameHandle& out, std::int64_t timeout_ns) {
     f.has_ground_truth = false;
     f.t_ready_ns = platform::monotonic_now_ns();
     f.produce_ns = f.t_ready_ns - t_dq;
+    f.produce_cpu_ns = platform::thread_cpu_ns() - cpu_dq;
     ++stats_.frames;
     recover_attempts_ = 0;
     out = std::move(h);

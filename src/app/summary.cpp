@@ -65,6 +65,21 @@ void write_accuracy(std::ostream& j, const char* key, const AccuracyReport& a) {
   }
 }
 
+/// CPU per frame (whole process, and without the source's work) and in total.
+void write_cpu(std::ostream& j, const pipeline::CpuStats& c) {
+  auto dist = [&j](const pipeline::StageLatency& l) {
+    j << "{\"p50\": " << num(l.p50_ms) << ", \"p90\": " << num(l.p90_ms)
+      << ", \"p99\": " << num(l.p99_ms) << ", \"max\": " << num(l.max_ms)
+      << ", \"mean\": " << num(l.mean_ms) << ", \"count\": " << l.count << "}";
+  };
+  j << "  \"cpu\": {\"process_s\": " << num(c.process_s) << ", \"source_s\": " << num(c.source_s)
+    << ",\n    \"per_frame_ms\": {\"process\": ";
+  dist(c.process);
+  j << ",\n      \"slam\": ";
+  dist(c.slam);
+  j << "}},\n";
+}
+
 /// Frame counts, latency, budgets and allocations.
 void write_frames(std::ostream& j, const pipeline::PipelineStats& st) {
   j << "  \"frames_in\": " << st.frames_in << ",\n";
@@ -90,6 +105,7 @@ void write_frames(std::ostream& j, const pipeline::PipelineStats& st) {
     j << (i ? ", " : "") << json_string(st.latency[i].name) << ": " << st.latency[i].overruns;
   }
   j << "},\n";
+  write_cpu(j, st.cpu);
   j << "  \"allocs_per_frame\": {";
   for (std::size_t i = 0; i < st.allocs.size(); ++i) {
     j << (i ? ", " : "") << json_string(st.allocs[i].thread) << ": "
@@ -409,7 +425,7 @@ void write_run_end(std::ostream& j, const pipeline::PipelineStats& st, const Run
     const auto& t = st.threads[i];
     j << (i ? "," : "") << "\n    {\"name\": " << json_string(t.thread) << ", \"core\": " << t.core
       << ", \"priority\": " << t.priority << ", \"applied\": " << (t.applied ? "true" : "false")
-      << ", \"note\": " << json_string(t.note) << "}";
+      << ", \"note\": " << json_string(t.note) << ", \"cpu_s\": " << num(t.cpu_s) << "}";
   }
   j << (st.threads.empty() ? "" : "\n  ") << "],\n";
   j << "  \"error\": " << json_string(info.error) << "\n";

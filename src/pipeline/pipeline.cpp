@@ -139,6 +139,8 @@ Status Pipeline::init(const std::string& output_dir) {
     lat_steps_[i] = std::make_unique<platform::LatencyRecorder>(
         frontend::to_string(static_cast<frontend::TrackStep>(i)), 0, trace);
   }
+  lat_cpu_process_ = std::make_unique<platform::LatencyRecorder>("process", 0, trace);
+  lat_cpu_slam_ = std::make_unique<platform::LatencyRecorder>("slam", 0, trace);
   lat_keyframe_ = std::make_unique<platform::LatencyRecorder>("keyframe", 0, trace);
   lat_relocalization_ = std::make_unique<platform::LatencyRecorder>(
       "relocalization", ms_to_ns(config_.relocalization.max_time_ms), trace);
@@ -194,7 +196,11 @@ Status Pipeline::run() {
   Status s = camera_.start();
   if (!s.is_ok()) return s;
   stats_.mode = config_.pipeline.lockstep ? "lockstep" : "threaded";
+  cpu_start_ns_ = platform::process_cpu_ns();
+  cpu_last_ns_ = cpu_start_ns_;
   s = config_.pipeline.lockstep ? run_lockstep() : run_threaded();
+  stats_.cpu.process_s = static_cast<double>(platform::process_cpu_ns() - cpu_start_ns_) * kNsToS;
+  stats_.cpu.source_s = static_cast<double>(source_cpu_ns_.load()) * kNsToS;
   camera_.stop();
   stats_.source = camera_.counters();
   Status c = output_.close();
@@ -286,6 +292,8 @@ void Pipeline::finish_stats(std::int64_t t_start_ns) {
                     summarize(*lat_relocalization_)};
   stats_.tracking_steps.clear();
   for (const auto& l : lat_steps_) stats_.tracking_steps.push_back(summarize(*l));
+  stats_.cpu.process = summarize(*lat_cpu_process_);
+  stats_.cpu.slam = summarize(*lat_cpu_slam_);
   stats_.map = map_->counters();
   stats_.keyframes = stats_.map.live_keyframes;
   stats_.map_points = stats_.map.live_points;
@@ -492,6 +500,24 @@ void Pipeline::count_result(const frontend::TrackingResult& r) {
   }
 }
 
+void Pipeline::record_cpu(std::uint64_t seq) {
+  const std::int64_t now = platform::process_cpu_ns();
+  const std::int64_t source = source_cpu_ns_.load(std::memory_order_relaxed);
+  const std::int64_t d_process = now - cpu_last_ns_;
+  const std::int64_t d_source = source - cpu_last_source_ns_;
+  lat_cpu_process_->record(seq, now, d_process);
+  lat_cpu_slam_->record(seq, now, std::max<std::int64_t>(0, d_process - d_source));
+  cpu_last_ns_ = now;
+  cpu_last_source_ns_ = source;
+}
+
+void Pipeline::add_source_cpu(std::int64_t cpu_ns) {
+  // Single writer (the capture thread, or the lockstep loop): load + store.
+  source_cpu_ns_.store(
+      source_cpu_ns_.load(std::memory_order_relaxed) + std::max<std::int64_t>(0, cpu_ns),
+      std::memory_order_relaxed);
+}
+
 // ---- Lockstep ------------------------------------------------------------------------
 
 Status Pipeline::run_lockstep() {
@@ -536,6 +562,7 @@ Status Pipeline::run_lockstep() {
     clock.set_ns(frame->t_ns);
     const bool steady = stats_.frames_in > warmup;
     lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
+    add_source_cpu(frame->produce_cpu_ns);
 
     // tracking
     platform::alloc::Scope trk_allocs;
@@ -567,6 +594,7 @@ Status Pipeline::run_lockstep() {
     platform::alloc::Scope out_allocs;
     const std::int64_t out_ns = output_.spin_once(r, t_done - r.t_ready_ns);
     lat_output_->record(r.seq, t_done, out_ns);
+    record_cpu(r.seq);
     if (steady) {
       allocs_capture_.allocations += cap_delta;
       ++allocs_capture_.frames;

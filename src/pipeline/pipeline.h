@@ -112,6 +112,18 @@ struct ThreadPlacement {
   int priority = 0;
   bool applied = false;  ///< affinity and priority were applied as asked
   std::string note;      ///< why not, when not
+  double cpu_s = 0.0;    ///< CPU time the thread used over the run, s
+};
+
+/// CPU time of the run. Per frame: the CPU the whole process used between one frame's
+/// tracking result and the next (every thread: in threaded mode the work of the keyframe,
+/// back-end and loop threads lands in the frames during which it ran).
+struct CpuStats {
+  StageLatency process;    ///< per frame, ms (name "process")
+  StageLatency slam;       ///< per frame without the source's work, ms (name "slam")
+  double process_s = 0.0;  ///< whole process from the start to the end of the stream, s
+  double source_s = 0.0;   ///< of which the source producing frames (converting, decoding or
+                           ///< rendering them: hal::Frame::produce_cpu_ns), s
 };
 
 /// What the full-graph optimization after the stream did.
@@ -218,6 +230,7 @@ struct PipelineStats {
   /// that initialized the map counts as initializing.
   std::vector<ThreadAllocs> tracking_allocs_by_state;
   std::vector<ThreadPlacement> threads;
+  CpuStats cpu;           ///< CPU per frame and in total
   FinalBaStats final_ba;  ///< pipeline.final_ba
 };
 
@@ -325,6 +338,19 @@ class Pipeline {
   std::unique_ptr<platform::LatencyRecorder> lat_tracking_;
   std::unique_ptr<platform::LatencyRecorder> lat_output_;
   std::unique_ptr<platform::LatencyRecorder> lat_end_to_end_;
+  std::unique_ptr<platform::LatencyRecorder> lat_cpu_process_;  ///< CPU per frame (tracking thread)
+  std::unique_ptr<platform::LatencyRecorder> lat_cpu_slam_;     ///< the same without the source
+  std::int64_t cpu_start_ns_ = 0;        ///< process CPU when the stream started
+  std::int64_t cpu_last_ns_ = 0;         ///< process CPU at the last frame's result
+  std::int64_t cpu_last_source_ns_ = 0;  ///< source_cpu_ns_ then
+  /// CPU the source spent producing the frames so far (hal::Frame::produce_cpu_ns; written by
+  /// the capture thread, read by the tracking thread).
+  std::atomic<std::int64_t> source_cpu_ns_{0};
+  /// Records the CPU used since the previous frame's result (the tracking thread, once per
+  /// frame).
+  void record_cpu(std::uint64_t seq);
+  /// Adds a frame's produce_cpu_ns (capture thread).
+  void add_source_cpu(std::int64_t cpu_ns);
   ThreadAllocs allocs_capture_{"capture"};
   ThreadAllocs allocs_tracking_{"tracking"};
   std::array<ThreadAllocs, frontend::kTrackerStateCount>

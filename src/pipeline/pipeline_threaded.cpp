@@ -82,6 +82,9 @@ struct Pipeline::Threaded {
   void backend();   ///< local BA and culling around the newest keyframe
   void loop();      ///< loop detection and correction (lowest priority)
   void output();    ///< the output files
+  /// CPU each stage thread used, s (written by the thread as it ends; read after the joins).
+  double cpu_capture_s = 0.0, cpu_tracking_s = 0.0, cpu_depth_s = 0.0, cpu_backend_s = 0.0,
+         cpu_loop_s = 0.0, cpu_output_s = 0.0;
 
   Pipeline& p;
   const std::int64_t timeout_ns;
@@ -163,6 +166,7 @@ void Pipeline::Threaded::capture() {
     last_frame_ns = platform::monotonic_now_ns();
     ++p.stats_.frames_in;
     p.lat_capture_->record(frame->seq, frame->t_ready_ns - frame->produce_ns, frame->produce_ns);
+    p.add_source_cpu(frame->produce_cpu_ns);
     // Drop-oldest: a full ring hands back the oldest frame; its buffer returns to the pool.
     if (const auto evicted = capture_ring->push(frame.release_raw())) {
       hal::FrameHandle dropped = pool.adopt(*evicted);
@@ -199,6 +203,7 @@ void Pipeline::Threaded::tracking() {
         p.lat_end_to_end_->record(r.seq, frame->t_ready_ns, t_done - frame->t_ready_ns);
         const std::uint64_t trk_delta = allocs.delta();
         p.count_result(r);
+        p.record_cpu(r.seq);
         if (r.relocalization_request && p.relocalizer_) {
           if (reloc_state.load(std::memory_order_acquire) == kRelocIdle) {
             p.tracker_->fill_relocalization_request(*frame, p.reloc_request_);
@@ -375,12 +380,21 @@ Status Pipeline::run_threaded() {
   platform::RtThread tracking_thread;
   platform::RtThread capture_thread;
   // Start consumers first so the capture ring is drained from the first frame.
-  const bool ok = output_thread.start(threads.output, [&run] { run.output(); }) &&
-                  loop_thread.start(threads.loop, [&run] { run.loop(); }) &&
-                  backend_thread.start(threads.backend, [&run] { run.backend(); }) &&
-                  depth_thread.start(threads.depth, [&run] { run.depth(); }) &&
-                  tracking_thread.start(threads.tracking, [&run] { run.tracking(); }) &&
-                  capture_thread.start(threads.capture, [&run] { run.capture(); });
+  // Each body ends by reading its thread's CPU clock (summary.json threads[].cpu_s).
+  auto timed = [](auto body, double& cpu_s) {
+    return [body, &cpu_s] {
+      body();
+      cpu_s = static_cast<double>(platform::thread_cpu_ns()) * 1e-9;
+    };
+  };
+  const bool ok =
+      output_thread.start(threads.output, timed([&run] { run.output(); }, run.cpu_output_s)) &&
+      loop_thread.start(threads.loop, timed([&run] { run.loop(); }, run.cpu_loop_s)) &&
+      backend_thread.start(threads.backend, timed([&run] { run.backend(); }, run.cpu_backend_s)) &&
+      depth_thread.start(threads.depth, timed([&run] { run.depth(); }, run.cpu_depth_s)) &&
+      tracking_thread.start(threads.tracking,
+                            timed([&run] { run.tracking(); }, run.cpu_tracking_s)) &&
+      capture_thread.start(threads.capture, timed([&run] { run.capture(); }, run.cpu_capture_s));
   if (!ok) {
     run.capture_done.store(true);
     run.capture_wake.notify_all();
@@ -402,13 +416,21 @@ Status Pipeline::run_threaded() {
   output_thread.join();
   if (!ok) return runtime_error("pipeline: could not start the stage threads");
 
-  const std::pair<const platform::ThreadSpec*, const platform::RtThread*> placed[] = {
-      {&threads.capture, &capture_thread}, {&threads.tracking, &tracking_thread},
-      {&threads.output, &output_thread},   {&threads.depth, &depth_thread},
-      {&threads.backend, &backend_thread}, {&threads.loop, &loop_thread}};
-  for (const auto& [spec, t] : placed) {
-    stats_.threads.push_back(ThreadPlacement{std::string(spec->name), spec->core, spec->priority,
-                                             t->report().fully_applied(), t->report().warning});
+  struct Placed {
+    const platform::ThreadSpec* spec;
+    const platform::RtThread* thread;
+    double cpu_s;
+  };
+  const Placed placed[] = {{&threads.capture, &capture_thread, run.cpu_capture_s},
+                           {&threads.tracking, &tracking_thread, run.cpu_tracking_s},
+                           {&threads.output, &output_thread, run.cpu_output_s},
+                           {&threads.depth, &depth_thread, run.cpu_depth_s},
+                           {&threads.backend, &backend_thread, run.cpu_backend_s},
+                           {&threads.loop, &loop_thread, run.cpu_loop_s}};
+  for (const Placed& t : placed) {
+    stats_.threads.push_back(ThreadPlacement{std::string(t.spec->name), t.spec->core,
+                                             t.spec->priority, t.thread->report().fully_applied(),
+                                             t.thread->report().warning, t.cpu_s});
   }
   return run.capture_status;
 }

@@ -125,6 +125,20 @@ TEST(PipelineThreaded, CameraRateRunAccountsForEveryFrame) {
   ASSERT_EQ(r.stats.threads.size(), 6U);  // capture, tracking, output, depth, backend, loop
   EXPECT_EQ(r.stats.threads[4].thread, "mer_backend");
   EXPECT_EQ(r.stats.threads.back().thread, "mer_loop");
+  // CPU: each stage thread's own clock; together no more than the process's, and the capture
+  // thread's holds the source's rendering.
+  const CpuStats& c = r.stats.cpu;
+  EXPECT_EQ(c.process.count, r.stats.frames_processed);
+  double threads_s = 0.0;
+  for (const ThreadPlacement& t : r.stats.threads) {
+    EXPECT_GE(t.cpu_s, 0.0) << t.thread;
+    threads_s += t.cpu_s;
+  }
+  EXPECT_GT(r.stats.threads[0].cpu_s, 0.0) << "capture";
+  EXPECT_GT(r.stats.threads[1].cpu_s, 0.0) << "tracking";
+  EXPECT_GE(r.stats.threads[0].cpu_s * 1.0001, c.source_s);
+  EXPECT_GT(c.source_s, 0.0);
+  EXPECT_LE(threads_s, c.process_s * 1.0001 + 0.01);
 }
 
 // Keyframes, local BA and culling on their own threads: RGB-D mode maps from the first frame;

@@ -16,6 +16,10 @@ TEST(Summary, JsonCarriesTheStableKeys) {
   st.frames_dropped = 1;
   st.latency.push_back({"tracking", 1.0, 2.0, 3.0, 4.0, 1.5, 30.0, 9, 0});
   st.allocs.push_back({"tracking", 0, 9});
+  st.cpu.process_s = 2.5;
+  st.cpu.source_s = 0.5;
+  st.cpu.slam.p50_ms = 7.0;
+  st.threads.push_back({"mer_tracking", 1, 80, true, "", 1.25});
   RunInfo info;
   info.input = "synthetic:\"quoted\"";
   const std::string j = summary_json(st, info);
@@ -23,7 +27,9 @@ TEST(Summary, JsonCarriesTheStableKeys) {
        {"\"frames_in\": 10", "\"frames_processed\": 9", "\"frames_dropped\": 1", "\"frames_lost\"",
         "\"keyframes\"", "\"map_points\"", "\"wall_time_s\"", "\"latency_ms\"",
         "\"tracking\": {\"p50\": 1, \"p90\": 2, \"p99\": 3, \"max\": 4", "\"budget_overruns\"",
-        "\"allocs_per_frame\": {\"tracking\": 0}", "synthetic:\\\"quoted\\\""}) {
+        "\"allocs_per_frame\": {\"tracking\": 0}", "synthetic:\\\"quoted\\\"",
+        "\"cpu\": {\"process_s\": 2.5, \"source_s\": 0.5", "\"slam\": {\"p50\": 7,",
+        "\"cpu_s\": 1.25}"}) {
     EXPECT_NE(j.find(key), std::string::npos) << key << "\n" << j;
   }
 }

@@ -119,6 +119,28 @@ TEST(PipelineLockstep, CountsAndLatencies) {
   std::filesystem::remove_all(dir);
 }
 
+// CPU per frame: one sample per frame; the source's rendering is counted apart, so the SLAM
+// share is the process's less the source's, and the totals add up.
+TEST(PipelineLockstep, CpuPerFrameCountsTheSourceApart) {
+  const auto dir = std::filesystem::temp_directory_path() / "mer_lockstep_cpu";
+  const PipelineStats s = run_once(dir, 25);
+  const CpuStats& c = s.cpu;
+  EXPECT_EQ(c.process.count, 25U);
+  EXPECT_EQ(c.slam.count, 25U);
+  EXPECT_GT(c.source_s, 0.0) << "the synthetic camera renders every frame";
+  EXPECT_GT(c.process_s, c.source_s);
+  EXPECT_GT(c.slam.mean_ms, 0.0);
+  EXPECT_LT(c.slam.mean_ms, c.process.mean_ms);
+  // Every frame's CPU was counted once: the per-frame sums are the run's total (the CPU
+  // before the first frame and after the last result is in the total only).
+  const double per_frame_sum_s = c.process.mean_ms * 25.0 * 1e-3;
+  EXPECT_LE(per_frame_sum_s, c.process_s * 1.0001);
+  EXPECT_GT(per_frame_sum_s, 0.5 * c.process_s);
+  const double slam_sum_s = c.slam.mean_ms * 25.0 * 1e-3;
+  EXPECT_NEAR(slam_sum_s, per_frame_sum_s - c.source_s, 0.05 * per_frame_sum_s);
+  std::filesystem::remove_all(dir);
+}
+
 TEST(PipelineLockstep, StopFlagEndsTheRunWithOutputsClosed) {
   const auto dir = std::filesystem::temp_directory_path() / "mer_lockstep_stop";
   std::filesystem::create_directories(dir);

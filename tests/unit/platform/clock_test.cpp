@@ -19,6 +19,21 @@ TEST(Clock, MonotonicAdvances) {
   EXPECT_GE(c, b);
 }
 
+TEST(Clock, CpuClocksCountWorkNotSleep) {
+  const std::int64_t p0 = process_cpu_ns();
+  const std::int64_t t0 = thread_cpu_ns();
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  const std::int64_t t1 = thread_cpu_ns();
+  EXPECT_LT(t1 - t0, 10'000'000) << "sleeping uses no CPU";
+  volatile double x = 1.0;
+  const std::int64_t w0 = monotonic_now_ns();
+  while (monotonic_now_ns() - w0 < 20'000'000) x = x * 1.0000001 + 1e-9;  // ~20 ms of work
+  const std::int64_t t2 = thread_cpu_ns();
+  const std::int64_t p2 = process_cpu_ns();
+  EXPECT_GT(t2 - t1, 5'000'000) << "busy work is counted";
+  EXPECT_GE(p2 - p0, t2 - t0) << "the process clock holds the thread's";
+}
+
 TEST(Clock, LockstepIsSetAndAdvancedExplicitly) {
   LockstepClock lockstep(1'000);
   const Clock& clock = lockstep;
