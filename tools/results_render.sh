@@ -252,6 +252,17 @@ timing_runs() {
     ( ((($m // {}).allocs_per_frame // {}) + (($r // {}).allocs_per_frame // {})) | keys_unsorted[] as $t
       | [$t, ($m | if . == null then null else .allocs_per_frame[$t] end | num),
          ($r | if . == null then null else .allocs_per_frame[$t] end | num)] | row ),
+    "",
+    "CPU time per frame (summary.json `cpu.per_frame_ms`, ms): `process` is the whole process,",
+    "`slam` the same without the work of the source (rendering, for the synthetic camera). Per",
+    "frame the split is approximate in threaded runs; the mean is exact.",
+    "",
+    "| CPU | mono p50 | mono mean | rgbd p50 | rgbd mean |",
+    "|---|--:|--:|--:|--:|",
+    ( ["process", "slam"][] as $c
+      | def cpu(k): if . == null then null else .cpu.per_frame_ms[$c][k]? end;
+        [$c, ($m | cpu("p50") | num), ($m | cpu("mean") | num),
+         ($r | cpu("p50") | num), ($r | cpu("mean") | num)] | row ),
     ""'
 }
 

@@ -18,6 +18,7 @@ namespace {
 constexpr std::int64_t kIdleWaitNs = 20'000'000;     // consumer re-checks stop flags this often
 constexpr std::int64_t kPoolRetryNs = 1'000'000;     // back-off when every buffer is in use
 constexpr std::int64_t kBackendRetryNs = 1'000'000;  // depth thread: back-end queue full
+constexpr double kNsToS = 1e-9;
 
 /// What the depth thread hands to the back-end thread after each keyframe job.
 struct BackendJob {
@@ -384,7 +385,7 @@ Status Pipeline::run_threaded() {
   auto timed = [](auto body, double& cpu_s) {
     return [body, &cpu_s] {
       body();
-      cpu_s = static_cast<double>(platform::thread_cpu_ns()) * 1e-9;
+      cpu_s = static_cast<double>(platform::thread_cpu_ns()) * kNsToS;
     };
   };
   const bool ok =
