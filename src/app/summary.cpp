@@ -568,6 +568,12 @@ void print_summary(std::ostream& os, const pipeline::PipelineStats& st, const Ru
     os << " " << a.thread << " " << std::setprecision(2) << a.per_frame();
   }
   os << "\n";
+  const pipeline::CpuStats& cpu = st.cpu;
+  if (cpu.process.count > 0) {
+    os << "  CPU ms per frame: p50 " << std::setprecision(1) << cpu.slam.p50_ms << ", mean "
+       << cpu.slam.mean_ms << " (with the source's own work: p50 " << cpu.process.p50_ms
+       << ", mean " << cpu.process.mean_ms << ")\n";
+  }
   const hal::SourceCounters& sc = st.source;
   if (sc.skipped || sc.error_frames || sc.seq_gaps || sc.restarts) {
     os << "  source: skipped " << sc.skipped << ", error frames " << sc.error_frames
