@@ -63,6 +63,22 @@ struct LoopScene {
   map::KeyframeId a = map::kNoId;
   map::KeyframeId b = map::kNoId;
 
+  // The drift of B's side: yaw 3 deg, a shift, and `scale`.
+  static geometry::Sim3d drift(double scale) {
+    geometry::Sim3d S;
+    S.R = Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
+    S.t = Eigen::Vector3d(0.05, 0.02, -0.03);
+    S.s = scale;
+    return S;
+  }
+  // A true pose as the drifted map holds it: rotated by S, its centre moved by S.
+  static SE3d drifted(const geometry::Sim3d& S, const SE3d& T_w_c_true) {
+    SE3d T_w_c = SE3d::Identity();
+    T_w_c.linear() = S.R * T_w_c_true.linear();
+    T_w_c.translation() = S * T_w_c_true.translation();
+    return T_w_c;
+  }
+
   static map::MapOptions options() {
     map::MapOptions o;
     o.max_keyframes = 16;
@@ -119,14 +135,9 @@ struct LoopScene {
     }
     // Keyframe B: truly 10 cm right of A, but the map drifted by S (yaw 3 deg, a shift and
     // scale 1.04): its pose and its points are S times the true ones.
-    geometry::Sim3d S;
-    S.R = Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
-    S.t = Eigen::Vector3d(0.05, 0.02, -0.03);
-    S.s = drift_scale;
+    const geometry::Sim3d S = drift(drift_scale);
     const SE3d T_w_b_true(Eigen::Translation3d(kBaseline, 0.0, 0.0));
-    SE3d T_w_b = SE3d::Identity();
-    T_w_b.linear() = S.R * T_w_b_true.linear();
-    T_w_b.translation() = S * T_w_b_true.translation();
+    const SE3d T_w_b = drifted(S, T_w_b_true);
     std::vector<features::Descriptor> desc_b = desc;
     for (features::Descriptor& d : desc_b) d[0] ^= 0x11ULL;  // 2 bits: another view's noise
     b = add_view(T_w_b_true, T_w_b, pts, desc_b, 5, 5 * kMsPerKeyframe, b_segment);
@@ -618,14 +629,9 @@ TEST(LoopCloser, ADriftRefusedMatchOntoTheLoopsOwnPlaceIsNoRival) {
     ++seq;
   }
   // B: truly 10 cm from A, stored with LoopScene's drift (yaw 3 deg, a shift, scale 1.04).
-  geometry::Sim3d S;
-  S.R = Eigen::AngleAxisd(3.0 * M_PI / 180.0, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  S.t = Eigen::Vector3d(0.05, 0.02, -0.03);
-  S.s = LoopScene::kDrift;
+  const geometry::Sim3d S = LoopScene::drift(LoopScene::kDrift);
   const SE3d T_w_b_true = at(LoopScene::kBaseline);
-  SE3d T_w_b = SE3d::Identity();
-  T_w_b.linear() = S.R * T_w_b_true.linear();
-  T_w_b.translation() = S * T_w_b_true.translation();
+  const SE3d T_w_b = LoopScene::drifted(S, T_w_b_true);
   std::vector<features::Descriptor> desc_b = desc;
   for (features::Descriptor& d : desc_b) d[0] ^= 0x11ULL;
   const map::KeyframeId b = scene::add_view(map, K, T_w_b_true, T_w_b, pts, desc_b, seq, 9000);
